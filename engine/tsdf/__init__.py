@@ -1,0 +1,24 @@
+"""TSDF fusion for ground truth, trimming and training targets (torch, CPU or CUDA; never bpy).
+
+Voxel positions are voxel CORNERS: `index * voxel_size + origin` (grid.py).
+"""
+
+from .bounds import frustum_bounds, frustum_corners, volume_from_bounds
+from .fusion import finalize_tsdf, fuse_ground_truth, fuse_tsdf
+from .grid import voxel_positions, world_to_voxel
+from .targets import (
+    LevelTargets,
+    dilate,
+    occupancy_targets,
+    projective_occupancy,
+    sample_depth_nearest,
+    supervised_mask,
+    unobserved_columns,
+)
+from .volume import TsdfVolume
+
+__all__ = [
+    "LevelTargets", "TsdfVolume", "dilate", "finalize_tsdf", "frustum_bounds", "frustum_corners",
+    "fuse_ground_truth", "fuse_tsdf", "occupancy_targets", "projective_occupancy", "sample_depth_nearest",
+    "supervised_mask", "unobserved_columns", "volume_from_bounds", "voxel_positions", "world_to_voxel",
+]

@@ -1,0 +1,147 @@
+"""Ground-truth TSDF fusion, vectorised in torch (CPU or CUDA).
+
+Rules (vortx-spec.md section 2, the NeuralRecon/VoRTX `TSDFVolume` with weight 1):
+- depth above `depth_cap` (3 m) and non-finite depth count as missing (0);
+- a voxel (corner position, see grid.py) projects to the pixel round(K @ x_cam); it is updated when
+  it lies in the image with z > 0, the depth d there is > 0 and d - z >= -trunc;
+- the update is a running mean of min(1, (d - z) / trunc);
+- afterwards values < 1 are negated and observed voxels still at exactly 1 become -1.
+Result: -1 observed free space, negative in front of a surface, (0, 1] behind it, +1 never observed.
+"""
+
+from __future__ import annotations
+
+from typing import Optional, Sequence, Union
+
+import numpy as np
+import torch
+
+from ..jobs import CancelToken, ProgressCallback, check, report
+from .bounds import frustum_bounds, frustum_corners, volume_from_bounds
+from .grid import voxel_positions
+from .volume import TsdfVolume
+
+Device = Union[str, torch.device, None]
+
+
+def fuse_tsdf(
+    depths: Sequence[np.ndarray],
+    K: np.ndarray,
+    cam_to_world: np.ndarray,
+    origin: np.ndarray,
+    dims: Sequence[int],
+    voxel_size: float = 0.04,
+    trunc: float = 0.12,
+    depth_cap: Optional[float] = 3.0,
+    device: Device = None,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Fuse depth maps into a TSDF in the ground-truth sign convention.
+
+    depths: N maps (H, W) in metres, 0 = missing (a sequence: frames are read one at a time, so a
+    lazy loader works). K (3, 3) or (N, 3, 3) in pixels of the depth map, pixel centres at integer
+    coordinates. cam_to_world (N, 4, 4) OpenCV axes; frames with non-finite poses are skipped.
+    origin (3,) world position of voxel (0, 0, 0); dims (X, Y, Z). depth_cap None keeps all depth.
+    Returns (tsdf, weight), each (X, Y, Z) float32 on `device`; weight counts the frames that updated a voxel.
+    """
+    device = torch.device(device) if device is not None else torch.device("cpu")
+    n = len(depths)
+    Ks = np.broadcast_to(np.asarray(K, np.float64), (n, 3, 3)) if np.ndim(K) == 2 else np.asarray(K, np.float64)
+    poses = np.asarray(cam_to_world, np.float64).reshape(n, 4, 4)
+    dims = tuple(int(d) for d in dims)
+    tsdf = torch.ones(dims, dtype=torch.float32, device=device)
+    weight = torch.zeros(dims, dtype=torch.float32, device=device)
+    for i in range(n):
+        check(cancel)
+        if np.isfinite(poses[i]).all():
+            _integrate(tsdf, weight, depths[i], Ks[i], poses[i], np.asarray(origin, np.float64), voxel_size,
+                       trunc, depth_cap)
+        report(progress, "TSDF fusion", i + 1, n)
+    return finalize_tsdf(tsdf, weight), weight
+
+
+def finalize_tsdf(tsdf: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """Running-mean TSDF (+ in front of surfaces) -> ground-truth convention (- in front), in place."""
+    observed = weight > 0
+    front_or_behind = tsdf < 1
+    tsdf[front_or_behind] *= -1
+    tsdf[~front_or_behind & observed] = -1
+    return tsdf
+
+
+def fuse_ground_truth(
+    depths: Sequence[np.ndarray],
+    K: np.ndarray,
+    cam_to_world: np.ndarray,
+    voxel_size: float = 0.04,
+    trunc: float = 0.12,
+    depth_cap: float = 3.0,
+    max_bound_frames: int = 200,
+    device: Device = None,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+) -> TsdfVolume:
+    """Bounds from the frusta, then `fuse_tsdf`: the whole ground-truth recipe for one scene."""
+    lo, hi = frustum_bounds(depths, K, cam_to_world, depth_cap=depth_cap, max_frames=max_bound_frames)
+    origin, dims = volume_from_bounds(lo, hi, voxel_size)
+    tsdf, weight = fuse_tsdf(depths, K, cam_to_world, origin, dims, voxel_size, trunc, depth_cap, device,
+                             progress, cancel)
+    return TsdfVolume(tsdf.cpu().numpy(), weight.cpu().numpy(), origin, voxel_size, trunc)
+
+
+def _integrate(
+    tsdf: torch.Tensor,
+    weight: torch.Tensor,
+    depth_np: np.ndarray,
+    K: np.ndarray,
+    pose: np.ndarray,
+    origin: np.ndarray,
+    voxel_size: float,
+    trunc: float,
+    depth_cap: Optional[float],
+) -> None:
+    """Update the running mean with one frame, touching only the voxels in its frustum's bounding box."""
+    device = tsdf.device
+    depth = torch.as_tensor(np.asarray(depth_np, np.float32), device=device)
+    depth = torch.where(torch.isfinite(depth), depth, torch.zeros_like(depth))
+    if depth_cap is not None:
+        depth = torch.where(depth > depth_cap, torch.zeros_like(depth), depth)
+    height, width = depth.shape
+    max_depth = float(depth.max())
+    if max_depth <= 0:
+        return
+
+    # Only voxels with z <= max_depth + trunc and inside the image can change; one voxel of slack
+    # around the box covers the half-pixel rounding at the image border.
+    corners = frustum_corners(K, pose, width, height, max_depth + trunc)
+    lo = np.floor((corners.min(axis=0) - origin) / voxel_size).astype(np.int64) - 1
+    hi = np.ceil((corners.max(axis=0) - origin) / voxel_size).astype(np.int64) + 2
+    shape = np.array(tsdf.shape)
+    lo, hi = np.clip(lo, 0, shape), np.clip(hi, 0, shape)
+    if np.any(hi <= lo):
+        return
+    block = voxel_positions(origin, hi - lo, voxel_size, start=lo, device=device)
+
+    R = torch.as_tensor(pose[:3, :3], dtype=torch.float32, device=device)
+    t = torch.as_tensor(pose[:3, 3], dtype=torch.float32, device=device)
+    cam = (block - t) @ R  # row-vector form of R^T (p - t): world -> camera
+    z = cam[..., 2]
+    z_safe = torch.where(z > 0, z, torch.ones_like(z))
+    u = torch.round(cam[..., 0] * (K[0, 0] / z_safe) + K[0, 2])
+    v = torch.round(cam[..., 1] * (K[1, 1] / z_safe) + K[1, 2])
+    inside = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    ui = torch.where(inside, u, torch.zeros_like(u)).long()
+    vi = torch.where(inside, v, torch.zeros_like(v)).long()
+    d = depth[vi, ui]
+    diff = d - z
+    update = inside & (d > 0) & (diff >= -trunc)
+    dist = torch.clamp(diff / trunc, max=1.0)
+
+    sl = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
+    t_block, w_block = tsdf[sl], weight[sl]
+    w_new = w_block + update.float()
+    mean = (t_block * w_block + dist) / torch.clamp(w_new, min=1.0)
+    tsdf[sl] = torch.where(update, mean, t_block)
+    weight[sl] = w_new
+
