@@ -1,0 +1,60 @@
+"""Losses (engine.train.losses): masks, log-L1 TSDF, projective occupancy over the whole batch."""
+
+from __future__ import annotations
+
+import torch
+
+from engine.train import losses as L
+
+
+def _cams(B, V, H=24, W=32):
+    K = torch.tensor([[20.0, 0, W / 2], [0, 20.0, H / 2], [0, 0, 1]]).expand(B, V, 3, 3).clone()
+    poses = torch.eye(4).expand(B, V, 4, 4).clone()  # cameras at the origin looking along +z
+    depths = torch.full((B, V, H, W), 2.0)
+    return K, poses, depths
+
+
+def test_projective_occupancy_covers_every_sample():
+    B, V, M = 2, 3, 50
+    K, poses, depths = _cams(B, V)
+    g = torch.Generator().manual_seed(0)
+    points = [torch.cat([torch.rand(M, 2, generator=g) - 0.5, 1.8 + 0.4 * torch.rand(M, 1, generator=g)], 1)
+              for _ in range(B)]
+    logits = [torch.randn(M, V, generator=g) for _ in range(B)]
+    base = L.projective_occupancy_loss(logits, points, K, poses, depths, trunc=0.12)
+    perturbed = [logits[0], logits[1] + 3.0]  # change sample 1 only
+    assert not torch.isclose(base, L.projective_occupancy_loss(perturbed, points, K, poses, depths, 0.12))
+    # and the loss is the BCE over the union of both samples' pairs
+    t0, s0 = L.projective_occupancy_targets(points[0], K[0], poses[0], depths[0], 0.12)
+    t1, s1 = L.projective_occupancy_targets(points[1], K[1], poses[1], depths[1], 0.12)
+    ref = torch.nn.functional.binary_cross_entropy_with_logits(
+        torch.cat([logits[0][s0], logits[1][s1]]), torch.cat([t0[s0], t1[s1]]))
+    assert torch.allclose(base, ref)
+
+
+def test_projective_targets():
+    K, poses, depths = _cams(1, 1)
+    pts = torch.tensor([[0.0, 0.0, 2.05], [0.0, 0.0, 1.5], [0.0, 0.0, -1.0], [0.0, 0.0, 2.0]])
+    depths[0, 0, 12, 16] = 0.0  # the centre pixel has no depth -> [3] unsupervised
+    depths[0, 0, 12, 16] = 2.0
+    t, s = L.projective_occupancy_targets(pts, K[0], poses[0], depths[0], 0.12)
+    assert t[:, 0].tolist() == [1.0, 0.0, 0.0, 1.0]
+    assert s[:, 0].tolist() == [True, True, False, True]
+    depths[0, 0, 12, 16] = 0.0
+    _, s = L.projective_occupancy_targets(pts, K[0], poses[0], depths[0], 0.12)
+    assert not s.any()
+
+
+def test_voxel_losses_use_mask_and_log_l1():
+    tsdf = torch.zeros(1, 2, 2, 2)
+    tsdf[0, 0, 0, 0] = 0.5
+    mask = torch.zeros(1, 2, 2, 2, dtype=torch.bool)
+    mask[0, 0, 0, 0] = True
+    coords = torch.tensor([[0, 0, 0, 0], [0, 1, 1, 1], [0, 5, 0, 0]])
+    logits = torch.tensor([0.0, 10.0, 10.0])
+    # only voxel 0 is supervised: pred 1.05*tanh(0) = 0 vs gt .5 -> |0 - log(1.5)|
+    assert torch.isclose(L.tsdf_loss(logits, coords, tsdf, mask), torch.log(torch.tensor(1.5)))
+    occ = torch.ones(1, 2, 2, 2)
+    assert torch.isclose(L.occupancy_loss(logits, coords, occ, mask), torch.log(torch.tensor(2.0)))
+    empty = L.occupancy_loss(logits, coords, occ, torch.zeros_like(mask))
+    assert empty.item() == 0.0
