@@ -1,0 +1,40 @@
+"""What a reconstruction returns: the mesh, the tiles and the numbers that explain the run."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Optional
+
+import numpy as np
+
+from ..mesh_io import Mesh
+from .tiles import Tile
+
+
+def empty_mesh() -> Mesh:
+    return Mesh(
+        vertices=np.zeros((0, 3), np.float32),
+        faces=np.zeros((0, 3), np.int32),
+        normals=np.zeros((0, 3), np.float32),
+        colors=np.zeros((0, 3), np.float32),
+    )
+
+
+@dataclass
+class ReconResult:
+    """mesh: vertices (V, 3) float32 world metres, faces (F, 3) int32, normals (V, 3) float32 pointing
+    toward free space (the cameras), colors (V, 3) float32 0..1.
+    tiles: the tile grid with each tile's final state, views and voxel counts.
+    stats: JSON-serialisable timings per stage, voxels per level, views per tile, memory, settings.
+    message: None on success; otherwise why the mesh is empty, in words for the user.
+    """
+
+    mesh: Mesh
+    tiles: list[Tile]
+    stats: dict[str, Any] = field(default_factory=dict)
+    message: Optional[str] = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def is_empty(self) -> bool:
+        return len(self.mesh.faces) == 0
