@@ -7,12 +7,22 @@ which never imports bpy.
 
 from . import operators, ui, vortx_blender
 
+# Order matters: operators and panels reference scene.vortx, which vortx_blender registers.
 _modules = (vortx_blender, operators, ui)
 
 
 def register() -> None:
-    for module in _modules:
-        module.register()
+    registered = []
+    try:
+        for module in _modules:
+            module.register()
+            registered.append(module)
+    except Exception:
+        # Undo the part that did register, so fixing the cause and enabling again does not fail
+        # with "already registered".
+        for module in reversed(registered):
+            module.unregister()
+        raise
 
 
 def unregister() -> None:

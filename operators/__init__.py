@@ -1,17 +1,17 @@
-"""Blender layer; filled in by the extension work (see issue 2)."""
+"""bpy operators (`vortx.*`). Thin: they read scene.vortx, call vortx_blender and the engine, report."""
 
-classes: tuple = ()
+import bpy
+
+from . import capture
+
+classes: tuple = (*capture.classes,)
 
 
 def register() -> None:
-    import bpy
-
     for cls in classes:
         bpy.utils.register_class(cls)
 
 
 def unregister() -> None:
-    import bpy
-
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

@@ -58,3 +58,46 @@ def empty_scene(blender):
 
     bpy.ops.wm.read_homefile(use_empty=True)
     return bpy.context.scene
+
+
+# --- helpers for the Blender-side tests (tests/test_blender_*.py) ---------------------------------
+
+
+def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)):
+    """Camera-to-world (4, 4) float64 in OpenCV axes (x right, y down, z forward) looking at `target`."""
+    import numpy as np
+
+    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
+    z = target - eye
+    z /= np.linalg.norm(z)
+    x = np.cross(z, up)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([x, y, z], axis=1)
+    pose[:3, 3] = eye
+    return pose
+
+
+def scene_state(scene) -> dict:
+    """Everything an import could change, as plain values: objects, collections, cameras, settings, render."""
+    import bpy
+
+    objects = {
+        obj.name: (obj.type, tuple(round(v, 6) for row in obj.matrix_world for v in row), tuple(sorted(c.name for c in obj.users_collection)))
+        for obj in bpy.data.objects
+    }
+    settings = scene.vortx
+    values = {
+        p.identifier: getattr(settings, p.identifier) for p in settings.bl_rna.properties if p.identifier != "rna_type"
+    }
+    render = scene.render
+    return {
+        "objects": objects,
+        "collections": sorted(c.name for c in bpy.data.collections),
+        "scene_collections": sorted(c.name for c in scene.collection.children_recursive),
+        "cameras": sorted(c.name for c in bpy.data.cameras),
+        "settings": values,
+        "render": (render.resolution_x, render.resolution_y, render.pixel_aspect_x, render.pixel_aspect_y),
+        "scene_camera": scene.camera.name if scene.camera else None,
+    }

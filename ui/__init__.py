@@ -1,17 +1,17 @@
-"""Blender layer; filled in by the extension work (see issue 2)."""
+"""Panels and menus (no logic): the "VoRTX" sidebar tab in the 3D View."""
 
-classes: tuple = ()
+import bpy
+
+from . import panels
+
+classes: tuple = (*panels.classes,)
 
 
 def register() -> None:
-    import bpy
-
     for cls in classes:
         bpy.utils.register_class(cls)
 
 
 def unregister() -> None:
-    import bpy
-
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

@@ -1,17 +1,19 @@
-"""Blender layer; filled in by the extension work (see issue 2)."""
+"""Blender-side core: scene settings, the job runner, building Blender data from engine results.
 
-classes: tuple = ()
+Modules here hold the logic that operators and panels use, written as functions that take data
+(a scene, a Capture) rather than a UI context, so tests run them headless.
+"""
+
+from . import job_operator, properties
+
+_modules = (properties, job_operator)
 
 
 def register() -> None:
-    import bpy
-
-    for cls in classes:
-        bpy.utils.register_class(cls)
+    for module in _modules:
+        module.register()
 
 
 def unregister() -> None:
-    import bpy
-
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+    for module in reversed(_modules):
+        module.unregister()

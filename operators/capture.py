@@ -1,0 +1,95 @@
+"""Capture operators: import a capture, estimate its camera poses. Thin: logic is in vortx_blender."""
+
+from __future__ import annotations
+
+
+import bpy
+from bpy.props import BoolProperty, StringProperty
+
+from ..engine import capture as engine_capture
+from ..engine.errors import VortxError
+from ..vortx_blender import jobs
+from ..vortx_blender.capture import apply_capture, resolve_capture_path
+from ..vortx_blender.job_operator import JobOperatorMixin
+from ..vortx_blender.jobs import JobFunction
+from ..vortx_blender.poses import PosedCapture, PoseSettings, estimate_poses_job
+
+# Files a capture can be chosen by; a folder is chosen by accepting the browser with no file selected.
+CAPTURE_FILE_GLOB = "*.json;*.txt;*.mp4;*.mov;*.m4v;*.avi;*.mkv;*.webm"
+
+
+def _report_applied(op: bpy.types.Operator, summary: str, warnings: list[str]) -> None:
+    for warning in warnings:
+        op.report({"WARNING"}, warning)
+    op.report({"INFO"}, summary)
+
+
+class VORTX_OT_import_capture(bpy.types.Operator):
+    """Import photos of a room (a folder, transforms.json, COLMAP or ScanNet layout, or a video) and create cameras for posed photos"""
+
+    bl_idname = "vortx.import_capture"
+    bl_label = "Import Capture"
+    bl_options = {"REGISTER", "UNDO"}
+
+    filepath: StringProperty(name="File Path", description="Capture folder or file", subtype="FILE_PATH", options={"SKIP_SAVE"})
+    directory: StringProperty(subtype="DIR_PATH", options={"SKIP_SAVE", "HIDDEN"})
+    filter_glob: StringProperty(default=CAPTURE_FILE_GLOB, options={"HIDDEN"})
+    filter_folder: BoolProperty(default=True, options={"HIDDEN"})
+
+    @classmethod
+    def poll(cls, context: bpy.types.Context) -> bool:
+        if jobs.is_busy():
+            cls.poll_message_set("Wait for the running VoRTX job to finish")
+            return False
+        return context.scene is not None
+
+    def invoke(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
+        if not self.filepath and context.scene.vortx.capture_path:
+            self.filepath = context.scene.vortx.capture_path
+        context.window_manager.fileselect_add(self)
+        return {"RUNNING_MODAL"}
+
+    def execute(self, context: bpy.types.Context) -> set[str]:
+        path = resolve_capture_path(self.filepath, self.directory)
+        if path is None:
+            self.report({"ERROR"}, "Choose a capture folder or file (transforms.json, a video, ...)")
+            return {"CANCELLED"}
+        try:
+            capture = engine_capture.load_capture(path)
+            applied = apply_capture(context.scene, capture, path)
+        except VortxError as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        _report_applied(self, f"Imported {path.name}: {applied.message(capture)}", applied.warnings)
+        return {"FINISHED"}
+
+
+class VORTX_OT_estimate_poses(JobOperatorMixin, bpy.types.Operator):
+    """Estimate camera poses of the imported capture with structure from motion (Esc cancels), then create its cameras"""
+
+    bl_idname = "vortx.estimate_poses"
+    bl_label = "Estimate Poses"
+    bl_options = {"REGISTER", "UNDO"}
+    job_title = "Estimate Poses"
+
+    @classmethod
+    def poll(cls, context: bpy.types.Context) -> bool:
+        if not super().poll(context):
+            return False
+        if not context.scene.vortx.capture_path:
+            cls.poll_message_set("Import a capture first")
+            return False
+        return True
+
+    def make_job_function(self, context: bpy.types.Context) -> JobFunction:
+        return estimate_poses_job(PoseSettings.from_scene(context.scene.vortx))
+
+    def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: PosedCapture) -> set[str]:
+        applied = apply_capture(scene, result.capture, result.capture_path, pose_status=result.pose_status())
+        if result.report:
+            print(result.report)  # the full SfM report (per-image registration, errors) for the console
+        _report_applied(self, f"Estimated poses: {applied.message(result.capture)}", applied.warnings)
+        return {"FINISHED"}
+
+
+classes = (VORTX_OT_import_capture, VORTX_OT_estimate_poses)
