@@ -152,7 +152,8 @@ def write_obj(
 
 
 def _colors_to_uint8(colors: np.ndarray) -> np.ndarray:
-    colors = np.asarray(colors).reshape(-1, colors.shape[-1])[:, :3]
+    colors = np.asarray(colors)
+    colors = colors.reshape(-1, colors.shape[-1])[:, :3]
     if colors.dtype == np.uint8:
         return colors
     return np.clip(np.round(colors.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)

@@ -1,0 +1,48 @@
+"""The "room box" baseline: a plain axis-aligned box room fitted to the scene.
+
+Its F-score is the floor we report beside real results: a method that does not beat an empty box
+has learned nothing about the room's contents.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..mesh_io import Mesh
+from ..tsdf.volume import TsdfVolume
+
+# Corner k of the box has coordinates (bit0 ? hi : lo) per axis.
+_CORNERS = np.array([[(k >> 0) & 1, (k >> 1) & 1, (k >> 2) & 1] for k in range(8)])
+# The six sides as corner loops; box_mesh winds their triangles so normals face INTO the box.
+_QUADS = [(0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 4), (1, 3, 7, 5)]
+
+
+def box_mesh(lo: np.ndarray, hi: np.ndarray) -> Mesh:
+    """Closed axis-aligned box [lo, hi] (each (3,) metres) as 8 vertices and 12 inward-facing triangles."""
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    vertices = np.where(_CORNERS == 1, hi, lo).astype(np.float32)
+    faces = np.array([[a, b, c] for a, b, c, d in _QUADS] + [[a, c, d] for a, b, c, d in _QUADS], np.int32)
+    # Flip triangles whose normal points away from the centre (we look at rooms from inside).
+    v = vertices.astype(np.float64)
+    normal = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
+    outward = np.einsum("ij,ij->i", normal, (lo + hi) / 2 - v[faces].mean(axis=1)) < 0
+    faces[outward] = faces[outward][:, ::-1]
+    return Mesh(vertices, faces)
+
+
+def fit_room_box(points: np.ndarray, quantile: float = 0.01) -> Mesh:
+    """Box spanning the [quantile, 1 - quantile] range of points (N, 3) per axis (robust to stray points).
+
+    Pass surface points of the room (near-surface voxels of a TSDF, a reconstruction's vertices, SfM
+    points); use `box_mesh` directly for known bounds (e.g. camera extents plus a margin).
+    """
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    if len(points) == 0:
+        raise ValueError("fit_room_box needs at least one point")
+    return box_mesh(np.quantile(points, quantile, axis=0), np.quantile(points, 1 - quantile, axis=0))
+
+
+def room_box_from_tsdf(volume: TsdfVolume, quantile: float = 0.01) -> Mesh:
+    """Room box fitted to the near-surface voxels (|tsdf| < 1, observed) of a ground-truth TSDF."""
+    near = (np.abs(volume.tsdf) < 0.999) & volume.observed
+    return fit_room_box(volume.positions()[near], quantile)

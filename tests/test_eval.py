@@ -1,0 +1,136 @@
+"""Atlas metrics, depth metrics, trimming and the room-box baseline against hand-computed numbers."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from engine.__main__ import main as engine_main
+from engine.eval import (
+    box_mesh,
+    depth_metrics,
+    evaluate_mesh,
+    fit_room_box,
+    mean_depth_metrics,
+    observed_mask,
+    point_metrics,
+    surface_points,
+    voxel_down_sample,
+)
+from engine.mesh_io import Mesh, write_ply
+from engine.tsdf import TsdfVolume
+
+GRID = np.array([[x, y, 0.0] for x in range(3) for y in range(3)])  # 9 points 1 m apart
+
+
+def test_point_metrics_hand_computed():
+    perfect = point_metrics(GRID, GRID)
+    assert (perfect.acc, perfect.comp, perfect.prec, perfect.recall, perfect.fscore) == (0, 0, 1, 1, 1)
+
+    near = point_metrics(GRID + [0, 0, 0.03], GRID)  # every point 3 cm off: inside the 5 cm threshold
+    assert near.acc == pytest.approx(0.03) and near.comp == pytest.approx(0.03)
+    assert (near.prec, near.recall, near.fscore) == (1, 1, 1)
+
+    far = point_metrics(GRID + [0, 0, 0.10], GRID)  # 10 cm off: outside it
+    assert far.acc == pytest.approx(0.10) and (far.prec, far.recall, far.fscore) == (0, 0, 0)
+
+    # Prediction = the 9 points 3 cm off plus 9 outliers 0.5 m above: half the prediction is right,
+    # all of the ground truth is found. P = 0.5, R = 1, F = 2 * 0.5 / 1.5.
+    pred = np.concatenate([GRID + [0, 0, 0.03], GRID + [0, 0, 0.5]])
+    mixed = point_metrics(pred, GRID)
+    assert mixed.prec == 0.5 and mixed.recall == 1 and mixed.fscore == pytest.approx(2 / 3)
+    assert mixed.acc == pytest.approx((0.03 + 0.5) / 2) and mixed.comp == pytest.approx(0.03)
+    assert point_metrics(np.zeros((0, 3)), GRID).fscore == 0
+
+
+def plane(z: float, size: float = 1.0) -> Mesh:
+    v = np.array([[0, 0, z], [size, 0, z], [size, size, z], [0, size, z]], np.float32)
+    return Mesh(v, np.array([[0, 1, 2], [0, 2, 3]], np.int32))
+
+
+def test_mesh_metrics_on_shifted_planes():
+    # Two big triangles: metrics need surface samples, not the 4 corner vertices.
+    same = evaluate_mesh(plane(0), plane(0))
+    assert same.fscore == 1 and same.acc < 1e-9 and same.n_pred == same.n_gt == 51 * 51  # cells start half a voxel below the min
+    shifted = evaluate_mesh(plane(0.03), plane(0))
+    assert shifted.acc == pytest.approx(0.03, abs=1e-6) and shifted.fscore == 1
+    assert evaluate_mesh(plane(0.10), plane(0)).fscore == 0
+
+
+def test_voxel_down_sample_follows_open3d_anchor():
+    pts = np.array([[0.0, 0, 0], [0.005, 0, 0], [0.015, 0, 0]])
+    # Cells start at min - voxel/2 = -0.01: [-0.01, 0.01) holds 0 and 0.005; [0.01, 0.03) holds 0.015.
+    out = voxel_down_sample(pts, 0.02)
+    np.testing.assert_allclose(sorted(out[:, 0]), [0.0025, 0.015])
+
+
+def test_surface_points_cover_a_large_triangle():
+    v = np.array([[0, 0, 0], [3, 0, 0], [0, 2, 0]], float)
+    pts = surface_points(v, np.array([[0, 1, 2]]), spacing=0.01, down_sample=0.02)
+    probe = np.random.default_rng(1).random((2000, 2)) * [3, 2]
+    probe = probe[probe[:, 0] / 3 + probe[:, 1] / 2 < 1]
+    from scipy.spatial import cKDTree
+
+    d = cKDTree(pts[:, :2]).query(probe)[0]
+    assert d.max() < 0.02 and np.all(np.abs(pts[:, 2]) < 1e-12)
+
+
+def test_trimming_to_observed_voxels():
+    weight = np.zeros((10, 10, 10), np.float32)
+    weight[:5] = 1  # only x < 0.2 m observed (voxel corners at 0, 0.04, ... 0.16)
+    vol = TsdfVolume(np.ones_like(weight), weight, np.zeros(3), 0.04, 0.12)
+    pts = np.array([[0.05, 0.1, 0.1], [0.17, 0.1, 0.1], [0.19, 0.1, 0.1], [0.3, 0.1, 0.1], [-0.5, 0, 0]])
+    assert observed_mask(pts, vol).tolist() == [True, True, False, False, False]
+    # A prediction with a wall in unobserved space is not penalised once trimmed.
+    pred = Mesh(np.concatenate([plane(0.1, 0.16).vertices, plane(0.1, 0.16).vertices + [0.25, 0, 0]]),
+                np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], np.int32))
+    gt = plane(0.1, 0.16)
+    assert evaluate_mesh(pred, gt).prec < 0.6
+    assert evaluate_mesh(pred, gt, observed=vol).prec == 1
+
+
+def test_depth_metrics_hand_computed():
+    pred = np.array([[1.0, 2.0], [0.0, 4.0]])
+    true = np.array([[1.0, 1.0], [2.0, 5.0]])
+    m = depth_metrics(pred, true)  # compared pixels: (1,1), (2,1), (4,5)
+    assert m["AbsRel"] == pytest.approx((0 + 1 + 0.2) / 3)
+    assert m["AbsDiff"] == pytest.approx(2 / 3)
+    assert m["SqRel"] == pytest.approx((0 + 1 + 1 / 5) / 3)
+    assert m["RMSE"] == pytest.approx(np.sqrt(2 / 3))
+    assert m["LogRMSE"] == pytest.approx(np.sqrt((np.log(2) ** 2 + np.log(0.8) ** 2) / 3))
+    assert (m["r1"], m["r2"], m["r3"]) == pytest.approx((1 / 3, 2 / 3, 2 / 3))
+    assert m["complete"] == 0.75
+    avg = mean_depth_metrics([m, depth_metrics(true, true)])
+    assert avg["AbsDiff"] == pytest.approx(1 / 3) and avg["r1"] == pytest.approx(2 / 3)
+
+
+def test_room_box_baseline():
+    box = box_mesh([0, 0, 0], [4, 3, 2.5])
+    v = box.vertices.astype(float)
+    n = np.cross(v[box.faces[:, 1]] - v[box.faces[:, 0]], v[box.faces[:, 2]] - v[box.faces[:, 0]])
+    to_centre = np.array([2, 1.5, 1.25]) - v[box.faces].mean(axis=1)
+    assert len(box.faces) == 12 and np.all(np.einsum("ij,ij->i", n, to_centre) > 0)  # normals face inward
+    # Points on the walls plus a few strays: the robust fit ignores the strays.
+    rng = np.random.default_rng(0)
+    pts = rng.random((5000, 3)) * [4, 3, 2.5]
+    pts[np.arange(5000), rng.integers(0, 3, 5000)] = 0
+    pts = np.concatenate([pts, pts * [1, 1, 0] + [4, 3, 2.5] * np.array([0, 0, 1]), [[40.0, 40, 40]]])
+    fitted = fit_room_box(pts, quantile=0.001)
+    np.testing.assert_allclose(fitted.vertices.min(0), [0, 0, 0], atol=0.02)
+    np.testing.assert_allclose(fitted.vertices.max(0), [4, 3, 2.5], atol=0.02)
+    assert evaluate_mesh(box, box).fscore == 1
+
+
+def test_eval_cli_prints_table_and_writes_json(tmp_path, capsys):
+    write_ply(tmp_path / "pred.ply", plane(0.03).vertices, plane(0.03).faces)
+    write_ply(tmp_path / "gt.ply", plane(0).vertices, plane(0).faces)
+    rc = engine_main(["eval", str(tmp_path / "pred.ply"), str(tmp_path / "gt.ply"), "--box-baseline",
+                      "--json", str(tmp_path / "m.json")])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "fscore" in out and "room box baseline" in out
+    result = json.loads((tmp_path / "m.json").read_text())["results"]["pred.ply"]
+    assert result["fscore"] == 1 and result["acc"] == pytest.approx(0.03, abs=1e-6)
+    assert engine_main(["eval", str(tmp_path / "missing.ply"), str(tmp_path / "gt.ply")]) == 1
