@@ -36,8 +36,9 @@ def look_pose(centre, forward, up=(0.0, 0.0, 1.0)) -> np.ndarray:
 
 
 def box_depth(pose: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
-    """Planar depth (H, W) of the inside of the box room, by ray-box exit intersection."""
-    u, v = np.meshgrid(np.arange(width), np.arange(height))
+    """Planar depth (H, W) of the inside of the box room, by ray-box exit intersection through pixel
+    centres (pixel (0, 0) covers [0, 1)^2, the engine's K convention)."""
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
     rays_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u, float)], axis=-1)
     d = rays_cam @ pose[:3, :3].T  # world direction per pixel with camera-z component 1
     o = pose[:3, 3]
@@ -57,7 +58,7 @@ def test_axis_aligned_views_give_exact_tsdf_and_sign_convention():
     # Narrow cameras at the room centre, each looking straight at one wall, the floor or the ceiling:
     # the surface is perpendicular to the optical axis, so projective distance == true distance.
     W, H = 60, 40
-    K = np.array([[100.0, 0, (W - 1) / 2], [0, 100.0, (H - 1) / 2], [0, 0, 1]])
+    K = np.array([[100.0, 0, W / 2], [0, 100.0, H / 2], [0, 0, 1]])
     centre = ROOM / 2
     dirs = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, -1), (0, 0, 1)]
     poses = np.stack([look_pose(centre, d, up=(0, 1, 0) if d[2] else (0, 0, 1)) for d in dirs])
@@ -86,7 +87,7 @@ def test_oblique_views_stay_close_to_true_distance():
     # A handheld-like ring of cameras: projective distances overestimate on oblique surfaces, so
     # only voxels right at the surface are compared, within one voxel.
     W, H = 80, 60
-    K = np.array([[70.0, 0, (W - 1) / 2], [0, 70.0, (H - 1) / 2], [0, 0, 1]])
+    K = np.array([[70.0, 0, W / 2], [0, 70.0, H / 2], [0, 0, 1]])
     rng = np.random.default_rng(0)
     poses = []
     for a in np.linspace(0, 2 * np.pi, 12, endpoint=False):
@@ -142,7 +143,7 @@ def test_occupancy_targets_dilate_then_pick_every_other_voxel():
 
 def test_projective_occupancy_band_is_three_voxels():
     W, H = 20, 10
-    K = torch.tensor([[10.0, 0, 9.5], [0, 10.0, 4.5], [0, 0, 1]])
+    K = torch.tensor([[10.0, 0, 10.0], [0, 10.0, 5.0], [0, 0, 1]])
     pose = torch.eye(4)  # camera at the origin looking along +z
     depth = torch.full((H, W), 2.0)
     depth[:, :5] = 0  # missing depth on the left

@@ -2,11 +2,15 @@
 
 Rules (vortx-spec.md section 2, the NeuralRecon/VoRTX `TSDFVolume` with weight 1):
 - depth above `depth_cap` (3 m) and non-finite depth count as missing (0);
-- a voxel (corner position, see grid.py) projects to the pixel round(K @ x_cam); it is updated when
-  it lies in the image with z > 0, the depth d there is > 0 and d - z >= -trunc;
+- a voxel (corner position, see grid.py) projects to the pixel that contains K @ x_cam; it is updated
+  when it lies in the image with z > 0, the depth d there is > 0 and d - z >= -trunc;
 - the update is a running mean of min(1, (d - z) / trunc);
 - afterwards values < 1 are negated and observed voxels still at exactly 1 become -1.
 Result: -1 observed free space, negative in front of a surface, (0, 1] behind it, +1 never observed.
+
+Pixel convention: the engine's K puts pixel (0, 0) over [0, 1)^2 (COLMAP's and Blender's convention,
+engine/capture/geometry.py), so the pixel containing u is floor(u). The reference code rounds, which
+is the same rule for K written with integer pixel centres (OpenCV's convention).
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ def fuse_tsdf(
 
     depths: N maps (H, W) in metres, 0 = missing (a sequence: frames are read one at a time, so a
     lazy loader works). K (3, 3) or (N, 3, 3) in pixels of the depth map, pixel centres at integer
-    coordinates. cam_to_world (N, 4, 4) OpenCV axes; frames with non-finite poses are skipped.
+    (0, 0) covering [0, 1)^2. cam_to_world (N, 4, 4) OpenCV axes; frames with non-finite poses are skipped.
     origin (3,) world position of voxel (0, 0, 0); dims (X, Y, Z). depth_cap None keeps all depth.
     Returns (tsdf, weight), each (X, Y, Z) float32 on `device`; weight counts the frames that updated a voxel.
     """
@@ -113,7 +117,7 @@ def _integrate(
         return
 
     # Only voxels with z <= max_depth + trunc and inside the image can change; one voxel of slack
-    # around the box covers the half-pixel rounding at the image border.
+    # around the box keeps float error at the border from dropping any.
     corners = frustum_corners(K, pose, width, height, max_depth + trunc)
     lo = np.floor((corners.min(axis=0) - origin) / voxel_size).astype(np.int64) - 1
     hi = np.ceil((corners.max(axis=0) - origin) / voxel_size).astype(np.int64) + 2
@@ -128,8 +132,8 @@ def _integrate(
     cam = (block - t) @ R  # row-vector form of R^T (p - t): world -> camera
     z = cam[..., 2]
     z_safe = torch.where(z > 0, z, torch.ones_like(z))
-    u = torch.round(cam[..., 0] * (K[0, 0] / z_safe) + K[0, 2])
-    v = torch.round(cam[..., 1] * (K[1, 1] / z_safe) + K[1, 2])
+    u = torch.floor(cam[..., 0] * (K[0, 0] / z_safe) + K[0, 2])
+    v = torch.floor(cam[..., 1] * (K[1, 1] / z_safe) + K[1, 2])
     inside = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
     ui = torch.where(inside, u, torch.zeros_like(u)).long()
     vi = torch.where(inside, v, torch.zeros_like(v)).long()

@@ -74,18 +74,19 @@ def occupancy_targets(tsdf: torch.Tensor) -> dict[str, LevelTargets]:
 def sample_depth_nearest(
     points: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Project world points into one view and read the depth map at the nearest pixel.
+    """Project world points into one view and read the depth map at the pixel they fall in.
 
-    points (M, 3); depth (H, W) metres, 0 = missing; K (3, 3) with pixel centres at integer
-    coordinates; cam_to_world (4, 4). Returns (z (M,) camera depth of the points, d (M,) depth-map
-    value, valid (M,) bool: in front of the camera, inside the image and d > 0).
+    points (M, 3); depth (H, W) metres, 0 = missing; K (3, 3) with pixel (0, 0) covering [0, 1)^2
+    (the engine's convention, so the pixel holding u is floor(u)); cam_to_world (4, 4).
+    Returns (z (M,) camera depth of the points, d (M,) depth-map value, valid (M,) bool: in front of
+    the camera, inside the image and d > 0).
     """
     R, t = cam_to_world[:3, :3].to(points.dtype), cam_to_world[:3, 3].to(points.dtype)
     cam = (points - t) @ R
     z = cam[:, 2]
     z_safe = torch.where(z > 0, z, torch.ones_like(z))
-    u = torch.round(cam[:, 0] / z_safe * K[0, 0] + K[0, 2])
-    v = torch.round(cam[:, 1] / z_safe * K[1, 1] + K[1, 2])
+    u = torch.floor(cam[:, 0] / z_safe * K[0, 0] + K[0, 2])
+    v = torch.floor(cam[:, 1] / z_safe * K[1, 1] + K[1, 2])
     height, width = depth.shape
     inside = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
     d = depth[torch.where(inside, v, torch.zeros_like(v)).long(), torch.where(inside, u, torch.zeros_like(u)).long()]
