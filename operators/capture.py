@@ -1,15 +1,12 @@
 """Capture operators: import a capture, estimate its camera poses. Thin: logic is in vortx_blender."""
 
-from __future__ import annotations
-
-
+# No `from __future__ import annotations`: bpy reads the property annotations as objects.
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
-from ..engine import capture as engine_capture
-from ..engine.errors import VortxError
-from ..vortx_blender import jobs
-from ..vortx_blender.capture import apply_capture, resolve_capture_path
+from ..engine.capture import Capture
+from ..engine.errors import CaptureError
+from ..vortx_blender.capture import apply_capture, import_capture_job, resolve_capture_path
 from ..vortx_blender.job_operator import JobOperatorMixin
 from ..vortx_blender.jobs import JobFunction
 from ..vortx_blender.poses import PosedCapture, PoseSettings, estimate_poses_job
@@ -24,43 +21,35 @@ def _report_applied(op: bpy.types.Operator, summary: str, warnings: list[str]) -
     op.report({"INFO"}, summary)
 
 
-class VORTX_OT_import_capture(bpy.types.Operator):
+class VORTX_OT_import_capture(JobOperatorMixin, bpy.types.Operator):
     """Import photos of a room (a folder, transforms.json, COLMAP or ScanNet layout, or a video) and create cameras for posed photos"""
 
     bl_idname = "vortx.import_capture"
     bl_label = "Import Capture"
     bl_options = {"REGISTER", "UNDO"}
+    job_title = "Import Capture"
 
     filepath: StringProperty(name="File Path", description="Capture folder or file", subtype="FILE_PATH", options={"SKIP_SAVE"})
     directory: StringProperty(subtype="DIR_PATH", options={"SKIP_SAVE", "HIDDEN"})
     filter_glob: StringProperty(default=CAPTURE_FILE_GLOB, options={"HIDDEN"})
     filter_folder: BoolProperty(default=True, options={"HIDDEN"})
 
-    @classmethod
-    def poll(cls, context: bpy.types.Context) -> bool:
-        if jobs.is_busy():
-            cls.poll_message_set("Wait for the running VoRTX job to finish")
-            return False
-        return context.scene is not None
-
     def invoke(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
         if not self.filepath and context.scene.vortx.capture_path:
             self.filepath = context.scene.vortx.capture_path
-        context.window_manager.fileselect_add(self)
+        context.window_manager.fileselect_add(self)  # then Blender calls execute, which goes modal
         return {"RUNNING_MODAL"}
 
-    def execute(self, context: bpy.types.Context) -> set[str]:
+    def make_job_function(self, context: bpy.types.Context) -> JobFunction:
         path = resolve_capture_path(self.filepath, self.directory)
         if path is None:
-            self.report({"ERROR"}, "Choose a capture folder or file (transforms.json, a video, ...)")
-            return {"CANCELLED"}
-        try:
-            capture = engine_capture.load_capture(path)
-            applied = apply_capture(context.scene, capture, path)
-        except VortxError as error:
-            self.report({"ERROR"}, str(error))
-            return {"CANCELLED"}
-        _report_applied(self, f"Imported {path.name}: {applied.message(capture)}", applied.warnings)
+            raise CaptureError("Choose a capture folder or file (transforms.json, a video, ...)")
+        self._path = path
+        return import_capture_job(path)
+
+    def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: Capture) -> set[str]:
+        applied = apply_capture(scene, result, self._path)
+        _report_applied(self, f"Imported {self._path.name}: {applied.message(result)}", applied.warnings)
         return {"FINISHED"}
 
 
@@ -88,7 +77,7 @@ class VORTX_OT_estimate_poses(JobOperatorMixin, bpy.types.Operator):
         applied = apply_capture(scene, result.capture, result.capture_path, pose_status=result.pose_status())
         if result.report:
             print(result.report)  # the full SfM report (per-image registration, errors) for the console
-        _report_applied(self, f"Estimated poses: {applied.message(result.capture)}", applied.warnings)
+        _report_applied(self, f"Estimated poses: {applied.message(result.capture)}", result.warnings + applied.warnings)
         return {"FINISHED"}
 
 

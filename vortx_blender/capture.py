@@ -11,8 +11,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
+from ..engine import capture as engine_capture
 from ..engine.capture import Capture
+from ..engine.jobs import CancelToken, ProgressCallback
 from .cameras import apply_camera_plan, plan_capture_cameras
+from .jobs import JobFunction
 from .properties import capture_summary, write_summary
 
 if TYPE_CHECKING:
@@ -58,3 +61,13 @@ def apply_capture(scene: "bpy.types.Scene", capture: Capture, path: os.PathLike 
     cameras = apply_camera_plan(scene, plan)
     write_summary(scene.vortx, summary)
     return CaptureApplied(cameras=cameras, warnings=list(capture.warnings) + plan.warnings)
+
+
+def import_capture_job(path: Path) -> JobFunction:
+    """A job function loading the capture at `path` (photo checks, video frames, undistortion can
+    take minutes, hence a job rather than a plain call)."""
+
+    def run(progress: ProgressCallback, cancel: CancelToken) -> Capture:
+        return engine_capture.load_capture(path, progress=progress, cancel=cancel)
+
+    return run

@@ -1,9 +1,13 @@
 """The dual-path operator pattern for long engine jobs (blender-notes.md section 3).
 
-- `execute` starts the job and blocks until it ends (scripts, and `bpy.app.background`, where timers
-  and modal handlers never fire).
-- `invoke` goes modal when Blender has a UI: a 0.1 s window timer drains progress into the status
-  bar, the window-manager progress cursor and the sidebar (via `jobs.active_job()`); Esc cancels.
+`execute` starts the job, then
+- goes modal when the operator was invoked from the UI (`options.is_invoke`, also true for the
+  execute that follows a file browser) and Blender is not in background mode: a 0.1 s window timer
+  drains progress into the status bar, the window-manager progress cursor and the sidebar (via
+  `jobs.active_job()`); Esc cancels. This is the rule Blender's own extension manager uses
+  (`_is_modal` in bl_pkg/bl_extension_ops.py);
+- otherwise blocks until the job ends: scripts, and `bpy.app.background`, where timers and modal
+  handlers never fire.
 
 Either way the result is applied on the main thread only after the engine function returned, so a
 cancelled or failed job leaves the scene as it was. Subclasses implement `make_job_function` (read
@@ -59,10 +63,18 @@ class JobOperatorMixin:
             self.report({"ERROR"}, str(error))
         return None
 
+    def _is_modal(self, context: bpy.types.Context) -> bool:
+        return not bpy.app.background and self.options.is_invoke and context.window is not None
+
+    def invoke(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
+        return self.execute(context)
+
     def execute(self, context: bpy.types.Context) -> set[str]:
         job = self._start(context)
         if job is None:
             return {"CANCELLED"}
+        if self._is_modal(context):
+            return self._begin_modal(context, job)
         last_stage = [""]
 
         def log(progress: Progress) -> None:
@@ -82,12 +94,7 @@ class JobOperatorMixin:
             pass  # the job's own error: _conclude reports it
         return self._conclude(context, job)
 
-    def invoke(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
-        if bpy.app.background or context.window is None:
-            return self.execute(context)
-        job = self._start(context)
-        if job is None:
-            return {"CANCELLED"}
+    def _begin_modal(self, context: bpy.types.Context, job: Job) -> set[str]:
         self._job = job
         wm = context.window_manager
         self._timer = wm.event_timer_add(TIMER_INTERVAL_S, window=context.window)

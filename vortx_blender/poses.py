@@ -37,27 +37,41 @@ class PoseSettings:
 class PosedCapture:
     capture: Capture
     capture_path: Path
-    report: str
+    report: str  # the engine's multi-line SfM report, for the console
+    warnings: list[str]
+    scale_source: str  # "camera height", "known distance", "metric capture", "unknown"
 
     def pose_status(self) -> str:
         posed, total = len(self.capture.posed_frames), len(self.capture.frames)
-        return f"{posed} of {total} posed by SfM"
+        scale = {"camera height": "scaled by camera height", "known distance": "scaled by a known distance"}
+        return f"{posed} of {total} posed by SfM, " + scale.get(self.scale_source, "scale unknown")
 
 
 def estimate_poses_job(settings: PoseSettings) -> JobFunction:
     """A job function that loads the capture, runs SfM and aligns the result to gravity and metres."""
 
     def run(progress: ProgressCallback, cancel: CancelToken) -> PosedCapture:
-        # Imported here: pycolmap and friends load only when the user actually estimates poses.
+        # Imported here: the SfM code loads only when the user actually estimates poses.
+        from ..engine import capture as engine_capture
         from ..engine import poses as engine_poses
-        from ..engine.capture import load_capture
 
-        capture = load_capture(settings.capture_path)
+        capture = engine_capture.load_capture(settings.capture_path, progress=progress, cancel=cancel)
         cancel.check()
-        options = engine_poses.PoseOptions(matcher=settings.matcher, max_image_size=settings.max_image_side)
+        # align=True: the engine applies align_gravity_and_scale to the SfM model itself, where it
+        # also has the sparse points that locate the floor (the scale comes from the camera height).
+        options = engine_poses.SfmOptions(
+            matcher=settings.matcher,
+            max_side=settings.max_image_side,
+            align=True,
+            camera_height=settings.camera_height,
+        )
         result = engine_poses.estimate_poses(capture, options, progress=progress, cancel=cancel)
-        cancel.check()
-        aligned = engine_poses.align_gravity_and_scale(result.capture, camera_height=settings.camera_height)
-        return PosedCapture(capture=aligned, capture_path=settings.capture_path, report=result.report)
+        return PosedCapture(
+            capture=result.capture,
+            capture_path=settings.capture_path,
+            report=result.report,
+            warnings=list(result.warnings),
+            scale_source=result.alignment.scale_source if result.alignment is not None else "unknown",
+        )
 
     return run

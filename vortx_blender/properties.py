@@ -22,7 +22,7 @@ DEFAULT_VOXEL_SIZE = 0.04
 DEFAULT_VIEW_COUNT = 60
 DEFAULT_TILE_SIZE = 96
 DEFAULT_CAMERA_HEIGHT = 1.5
-DEFAULT_MAX_IMAGE_SIDE = 1600
+DEFAULT_MAX_IMAGE_SIDE = 1024  # engine.poses.SfmOptions.max_side: full registration on real photos at 4x less cost
 
 MATCHER_ITEMS = [
     ("AUTO", "Auto", "Sequential matching for video-like captures, exhaustive for small unordered sets"),
@@ -143,7 +143,7 @@ def settings_values(settings: VortxSceneSettings) -> dict[str, object]:
     """Every scene.vortx property as plain Python values (for snapshots, logs and tests)."""
     values: dict[str, object] = {}
     for prop in settings.bl_rna.properties:
-        if prop.identifier == "rna_type":
+        if prop.identifier in ("rna_type", "name"):  # built into every PropertyGroup, not a setting
             continue
         value = getattr(settings, prop.identifier)
         values[prop.identifier] = tuple(value) if hasattr(value, "__len__") and not isinstance(value, str) else value

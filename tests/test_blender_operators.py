@@ -1,0 +1,191 @@
+"""The capture operators through bpy.ops, headless (so they run blocking).
+
+The engine's loader is replaced by a stand-in here, which pins down the operator's own behaviour
+(what it writes, what it leaves alone on failure) independently of the loaders; the tests in
+test_blender_capture_real.py run the real loaders and SfM.
+"""
+
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import look_at_pose, scene_state
+
+
+def _capture(blender, root: Path, count: int, posed: bool = True, fmt: str = "transforms"):
+    model = blender.engine.capture
+    K = np.array([[400.0, 0, 160], [0, 400.0, 120], [0, 0, 1]])
+    frames = []
+    for i in range(count):
+        angle = 2 * np.pi * i / count
+        pose = look_at_pose([2 * np.cos(angle), 2 * np.sin(angle), 1.5], [0, 0, 1]) if posed else None
+        frames.append(model.Frame(image_path=root / f"{i:04d}.jpg", width=320, height=240, K=K.copy(), pose=pose))
+    return model.Capture(root=root, format=fmt, frames=frames, metric=posed, warnings=["2 duplicate photos dropped"])
+
+
+@pytest.fixture
+def fake_loader(blender, monkeypatch):
+    """Make engine.capture.load_capture return (or raise) what the test says; records its calls."""
+    calls: list = []
+    outcome: dict = {}
+
+    def load_capture(path, progress=None, cancel=None, **options):
+        calls.append(Path(path))
+        if progress is not None:
+            progress("checking photos", 1, 1)
+        if isinstance(outcome.get("value"), BaseException):
+            raise outcome["value"]
+        return outcome["value"]
+
+    monkeypatch.setattr(blender.engine.capture, "load_capture", load_capture, raising=False)
+    return outcome, calls
+
+
+def test_import_fills_panel_and_creates_cameras(blender, empty_scene, fake_loader, tmp_path: Path) -> None:
+    import bpy
+
+    outcome, calls = fake_loader
+    outcome["value"] = _capture(blender, tmp_path, 6)
+    assert bpy.ops.vortx.import_capture(filepath=str(tmp_path)) == {"FINISHED"}
+    assert calls == [tmp_path]
+    settings = empty_scene.vortx
+    assert settings.capture_path == str(tmp_path)
+    assert (settings.capture_format, settings.frame_count, settings.posed_frame_count) == ("transforms", 6, 6)
+    assert (settings.resolution_x, settings.resolution_y) == (320, 240)
+    assert settings.pose_status == "All 6 posed (transforms)" and settings.poses_metric
+    cameras = [o for o in bpy.data.collections["VoRTX Capture"].objects if o.type == "CAMERA"]
+    assert len(cameras) == 6
+
+    # Re-import a different capture: its cameras replace the old ones.
+    outcome["value"] = _capture(blender, tmp_path, 4)
+    assert bpy.ops.vortx.import_capture(filepath=str(tmp_path)) == {"FINISHED"}
+    assert len([o for o in bpy.data.objects if o.type == "CAMERA"]) == 4
+    assert empty_scene.vortx.frame_count == 4
+
+
+def test_import_without_poses_clears_old_cameras(blender, empty_scene, fake_loader, tmp_path: Path) -> None:
+    import bpy
+
+    outcome, _ = fake_loader
+    outcome["value"] = _capture(blender, tmp_path, 5)
+    bpy.ops.vortx.import_capture(filepath=str(tmp_path))
+    outcome["value"] = _capture(blender, tmp_path, 5, posed=False, fmt="images")
+    assert bpy.ops.vortx.import_capture(filepath=str(tmp_path)) == {"FINISHED"}
+    assert not [o for o in bpy.data.objects if o.type == "CAMERA"]
+    assert empty_scene.vortx.pose_status == "No poses: run Estimate Poses"
+    assert not empty_scene.vortx.poses_metric
+
+
+def _nan_pose_capture(blender, root: Path):
+    capture = _capture(blender, root, 5)
+    capture.frames[3].pose[1, 1] = np.nan
+    return capture
+
+
+@pytest.mark.parametrize(
+    "failure, message",
+    [
+        (lambda blender, root: blender.engine.errors.CaptureError(f"no JPEG or PNG photos in {root}"), "no JPEG or PNG photos"),
+        (lambda blender, root: blender.engine.errors.CaptureError("photo 0002.jpg is corrupt or truncated"), "0002.jpg is corrupt"),
+        (_nan_pose_capture, "0003.jpg"),
+    ],
+    ids=["empty folder", "corrupt image", "NaN pose"],
+)
+def test_failed_import_reports_and_changes_nothing(blender, empty_scene, fake_loader, tmp_path: Path, failure, message: str) -> None:
+    import bpy
+
+    outcome, _ = fake_loader
+    outcome["value"] = _capture(blender, tmp_path, 3)
+    bpy.ops.vortx.import_capture(filepath=str(tmp_path))  # a previous import the failure must not disturb
+    before = scene_state(empty_scene)
+
+    outcome["value"] = failure(blender, tmp_path / "other")
+    (tmp_path / "other").mkdir()
+    with pytest.raises(RuntimeError, match=message):
+        bpy.ops.vortx.import_capture(filepath=str(tmp_path / "other"))
+    assert scene_state(empty_scene) == before
+
+
+def test_import_without_a_path_is_refused(blender, empty_scene, fake_loader) -> None:
+    import bpy
+
+    _, calls = fake_loader
+    with pytest.raises(RuntimeError, match="Choose a capture folder or file"):
+        bpy.ops.vortx.import_capture()
+    assert calls == []
+
+
+def test_resolve_capture_path(blender, tmp_path: Path) -> None:
+    resolve = blender.vortx_blender.capture.resolve_capture_path
+    json_file = tmp_path / "transforms.json"
+    json_file.write_text("{}")
+    assert resolve(str(json_file)) == json_file
+    assert resolve(str(tmp_path) + "/") == tmp_path  # folder accepted in the browser with no file picked
+    assert resolve("", str(tmp_path)) == tmp_path
+    assert resolve(str(tmp_path / "missing.json"), str(tmp_path)) == tmp_path
+    assert resolve("", "") is None
+
+
+def test_estimate_poses_needs_an_imported_capture(blender, empty_scene) -> None:
+    import bpy
+
+    assert not bpy.ops.vortx.estimate_poses.poll()
+    empty_scene.vortx.capture_path = "/somewhere"
+    assert bpy.ops.vortx.estimate_poses.poll()
+
+
+def test_estimate_poses_applies_engine_result(blender, empty_scene, fake_loader, monkeypatch, tmp_path: Path) -> None:
+    """The operator's side of pose estimation, with the SfM run replaced (the real one: test_blender_capture_real.py)."""
+    import bpy
+
+    poses = importlib.import_module(f"{blender.__name__}.engine.poses")  # loaded lazily by the extension
+    outcome, _ = fake_loader
+    outcome["value"] = _capture(blender, tmp_path, 6, posed=False, fmt="images")
+    bpy.ops.vortx.import_capture(filepath=str(tmp_path))
+    seen_options = []
+
+    def fake_estimate(capture, options=None, progress=None, cancel=None):
+        seen_options.append(options)
+        posed = _capture(blender, tmp_path, 6)
+        posed.frames[5].pose = None  # one photo SfM could not place
+        alignment = poses.Alignment(posed, poses.Similarity.identity(), None, "camera height", "scaled")
+        return poses.PoseResult(
+            capture=posed, registered=[f.name for f in posed.frames[:5]], unregistered=[posed.frames[5].name],
+            model_sizes=[5], matcher="exhaustive", camera_model="PINHOLE", K=posed.frames[0].K, radial_distortion=[],
+            mean_reprojection_error=0.3, points=np.zeros((0, 3)), point_colors=np.zeros((0, 3), np.uint8),
+            scaled_size=(320, 240), alignment=alignment, warnings=["1 of 6 photos not registered: 0005.jpg"],
+        )
+
+    monkeypatch.setattr(poses, "estimate_poses", fake_estimate)
+    empty_scene.vortx.sfm_matcher = "SEQUENTIAL"
+    empty_scene.vortx.camera_height = 1.7
+    empty_scene.vortx.sfm_max_image_side = 800
+    assert bpy.ops.vortx.estimate_poses() == {"FINISHED"}
+    (options,) = seen_options
+    assert (options.matcher, options.camera_height, options.max_side, options.align) == ("sequential", pytest.approx(1.7), 800, True)
+    settings = empty_scene.vortx
+    assert settings.posed_frame_count == 5 and settings.frame_count == 6
+    assert settings.pose_status == "5 of 6 posed by SfM, scaled by camera height"
+    assert len([o for o in bpy.data.objects if o.type == "CAMERA"]) == 5
+
+
+def test_estimate_poses_failure_changes_nothing(blender, empty_scene, fake_loader, monkeypatch, tmp_path: Path) -> None:
+    import bpy
+
+    poses = importlib.import_module(f"{blender.__name__}.engine.poses")  # loaded lazily by the extension
+    outcome, _ = fake_loader
+    outcome["value"] = _capture(blender, tmp_path, 6, posed=False, fmt="images")
+    bpy.ops.vortx.import_capture(filepath=str(tmp_path))
+    before = scene_state(empty_scene)
+
+    def failing_estimate(capture, options=None, progress=None, cancel=None):
+        raise blender.engine.errors.PoseError("no camera poses could be estimated for the 6 photos")
+
+    monkeypatch.setattr(poses, "estimate_poses", failing_estimate)
+    with pytest.raises(RuntimeError, match="no camera poses could be estimated"):
+        bpy.ops.vortx.estimate_poses()
+    assert scene_state(empty_scene) == before

@@ -1,0 +1,71 @@
+"""scene.vortx: defaults, units, and values saved with the .blend file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+
+def test_defaults_and_units(blender, empty_scene) -> None:
+    settings = empty_scene.vortx
+    assert settings.voxel_size == pytest.approx(0.04)
+    assert settings.view_count == 60
+    assert settings.tile_size == 96
+    assert settings.show_tiles is True
+    assert settings.sfm_matcher == "AUTO"
+    assert settings.camera_height == pytest.approx(1.5)
+    assert settings.capture_path == "" and settings.frame_count == 0
+    rna = settings.bl_rna.properties
+    assert (rna["voxel_size"].subtype, rna["voxel_size"].unit) == ("DISTANCE", "LENGTH")
+    assert (rna["camera_height"].subtype, rna["camera_height"].unit) == ("DISTANCE", "LENGTH")
+    assert set(rna["sfm_matcher"].enum_items.keys()) == {"AUTO", "SEQUENTIAL", "EXHAUSTIVE"}
+
+
+def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) -> None:
+    import bpy
+
+    values = {
+        "capture_path": str(tmp_path / "room"),
+        "capture_format": "scannet",
+        "frame_count": 321,
+        "posed_frame_count": 300,
+        "resolution_x": 640,
+        "resolution_y": 480,
+        "poses_metric": True,
+        "pose_status": "300 of 321 posed by SfM",
+        "voxel_size": 0.08,
+        "view_count": 24,
+        "tile_size": 64,
+        "show_tiles": False,
+        "sfm_matcher": "EXHAUSTIVE",
+        "sfm_max_image_side": 1024,
+        "camera_height": 1.25,
+    }
+    settings = empty_scene.vortx
+    for name, value in values.items():
+        setattr(settings, name, value)
+    path = tmp_path / "settings.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(path))
+    bpy.ops.wm.read_homefile(use_empty=True)
+    assert bpy.context.scene.vortx.view_count == 60  # really a different scene now
+    bpy.ops.wm.open_mainfile(filepath=str(path))
+
+    reopened = blender.vortx_blender.properties.settings_values(bpy.context.scene.vortx)
+    assert set(reopened) == set(values), "a scene setting is missing from this test"
+    for name, value in values.items():
+        assert reopened[name] == (pytest.approx(value) if isinstance(value, float) else value), name
+
+
+def test_capture_summary_reports_pose_coverage(blender, tmp_path: Path) -> None:
+    import numpy as np
+
+    model = blender.engine.capture
+    K = np.diag([500.0, 500.0, 1.0])
+    frames = [model.Frame(tmp_path / f"{i}.jpg", 640, 480, K, np.eye(4) if i < 2 else None) for i in range(3)]
+    summary = blender.vortx_blender.properties.capture_summary
+    partial = summary(model.Capture(tmp_path, "colmap", frames, metric=True), str(tmp_path))
+    assert partial["pose_status"] == "2 of 3 posed (colmap)"
+    assert (partial["frame_count"], partial["posed_frame_count"], partial["poses_metric"]) == (3, 2, True)
+    unposed = summary(model.Capture(tmp_path, "images", [model.Frame(tmp_path / "a.jpg", 640, 480, None)], metric=True), "p")
+    assert unposed["pose_status"] == "No poses: run Estimate Poses" and unposed["poses_metric"] is False

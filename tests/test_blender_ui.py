@@ -1,0 +1,139 @@
+"""The VoRTX sidebar tab: registration, and the panels' draw() run against a checking stand-in layout.
+
+Headless there is no region to draw into, so draw() gets a recorder that checks every call the way
+Blender would: the UILayout function exists, keywords are its parameters, enum values (icons,
+progress type) are valid, `prop` names a property of the data and `operator` a registered operator.
+(Blender itself only prints a warning and draws nothing for a wrong property name.)
+"""
+
+from __future__ import annotations
+
+import threading
+from types import SimpleNamespace
+
+import pytest
+
+PANELS = ("VORTX_PT_capture", "VORTX_PT_pose_settings", "VORTX_PT_reconstruction")
+
+
+class RecordingLayout:
+    def __init__(self, calls: list) -> None:
+        object.__setattr__(self, "_calls", calls)
+
+    def __setattr__(self, name: str, value) -> None:
+        import bpy
+
+        assert name in bpy.types.UILayout.bl_rna.properties, f"UILayout has no attribute {name}"
+        self._calls.append(("set", {name: value}))
+
+    def __getattr__(self, name: str):
+        import bpy
+
+        function = bpy.types.UILayout.bl_rna.functions.get(name)
+        assert function is not None, f"UILayout has no function {name}"
+        params = [p for p in function.parameters if not p.is_output]
+
+        def call(*args, **kwargs):
+            bound = dict(zip((p.identifier for p in params), args))
+            bound.update(kwargs)
+            for key, value in bound.items():
+                param = function.parameters.get(key)
+                assert param is not None, f"UILayout.{name}() has no parameter {key}"
+                if param.type == "ENUM" and isinstance(value, str) and value:
+                    assert value in param.enum_items.keys(), f"{name}({key}={value!r}) is not a valid value"
+            if name == "prop":
+                assert bound["property"] in bound["data"].bl_rna.properties, f"no property {bound['property']}"
+            if name == "operator":
+                module, op = bound["operator"].split(".")
+                getattr(getattr(bpy.ops, module), op).get_rna_type()  # KeyError when not registered
+            self._calls.append((name, bound))
+            return RecordingLayout(self._calls)
+
+        return call
+
+
+def _draw(panel_name: str, context) -> list:
+    import bpy
+
+    calls: list = []
+    panel_cls = getattr(bpy.types, panel_name)
+    panel_cls.draw(SimpleNamespace(layout=RecordingLayout(calls)), context)
+    return calls
+
+
+def test_panels_registered_in_vortx_sidebar_tab(blender) -> None:
+    import bpy
+
+    for name in PANELS:
+        cls = getattr(bpy.types, name)
+        assert (cls.bl_space_type, cls.bl_region_type, cls.bl_category) == ("VIEW_3D", "UI", "VoRTX"), name
+    assert bpy.types.VORTX_PT_pose_settings.bl_parent_id == "VORTX_PT_capture"
+
+
+def test_capture_panel_before_and_after_import(blender, empty_scene) -> None:
+    import bpy
+
+    calls = _draw("VORTX_PT_capture", bpy.context)
+    operators = [c[1]["operator"] for c in calls if c[0] == "operator"]
+    assert operators == ["vortx.import_capture", "vortx.estimate_poses"]
+    assert any(c[0] == "label" and c[1].get("text") == "No capture imported" for c in calls)
+
+    settings = empty_scene.vortx
+    settings.capture_path = "/captures/living-room/"
+    settings.capture_format = "transforms"
+    settings.frame_count, settings.resolution_x, settings.resolution_y = 60, 1920, 1080
+    settings.pose_status = "All 60 posed (transforms)"
+    texts = [c[1].get("text") for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
+    for expected in ("living-room", "transforms", "60", "1920 x 1080", "All 60 posed (transforms)"):
+        assert expected in texts, (expected, texts)
+
+
+def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
+    import bpy
+
+    jobs = blender.vortx_blender.jobs
+    release, reported = threading.Event(), threading.Event()
+
+    def work(progress, cancel):
+        progress("matching", 3, 12)
+        reported.set()
+        release.wait(10)
+
+    job = jobs.Job("Estimate Poses", work).start()
+    try:
+        reported.wait(5)
+        job.poll()
+        (progress,) = [c[1] for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "progress"]
+        assert progress["factor"] == pytest.approx(0.25)
+        assert "matching 3/12" in progress["text"]
+    finally:
+        release.set()
+        job.wait()
+    assert not [c for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "progress"]
+
+
+@pytest.mark.parametrize(
+    "panel, expected",
+    [
+        ("VORTX_PT_reconstruction", ["voxel_size", "view_count", "tile_size", "show_tiles"]),
+        ("VORTX_PT_pose_settings", ["sfm_matcher", "sfm_max_image_side", "camera_height"]),
+    ],
+)
+def test_settings_panels_show_their_properties(blender, empty_scene, panel: str, expected: list[str]) -> None:
+    import bpy
+
+    props = [c[1]["property"] for c in _draw(panel, bpy.context) if c[0] == "prop"]
+    assert props == expected
+
+
+def test_recorder_rejects_unknown_property(blender, empty_scene) -> None:
+    # The checks above can fail: a draw function naming a property that does not exist.
+    draw = blender.ui.panels.draw_reconstruction_settings
+    layout = RecordingLayout([])
+    draw(layout, empty_scene.vortx)
+    with pytest.raises(AssertionError, match="no property"):
+        layout.prop(empty_scene.vortx, "voxel_sise")
+    with pytest.raises(KeyError):
+        layout.operator("vortx.no_such_operator")
+    with pytest.raises(AssertionError, match="not a valid value"):
+        layout.label(text="x", icon="NO_SUCH_ICON")
