@@ -137,3 +137,11 @@ def test_recorder_rejects_unknown_property(blender, empty_scene) -> None:
         layout.operator("vortx.no_such_operator")
     with pytest.raises(AssertionError, match="not a valid value"):
         layout.label(text="x", icon="NO_SUCH_ICON")
+
+
+def test_file_import_menu_entry(blender, empty_scene) -> None:
+    import bpy
+
+    calls: list = []
+    blender.ui.menu_import(SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
+    assert [c[1]["operator"] for c in calls if c[0] == "operator"] == ["vortx.import_capture"]

@@ -8,7 +8,9 @@ from conftest import EXTENSION_MODULE
 
 
 def _registered(bpy) -> dict[str, bool]:
+    import_menu = getattr(bpy.types.TOPBAR_MT_file_import.draw, "_draw_funcs", [])
     return {
+        "file > import entry": any(getattr(f, "__module__", "").startswith(EXTENSION_MODULE) for f in import_menu),
         "scene.vortx": hasattr(bpy.types.Scene, "vortx"),
         "import operator": hasattr(bpy.types, "VORTX_OT_import_capture"),
         "estimate operator": hasattr(bpy.types, "VORTX_OT_estimate_poses"),

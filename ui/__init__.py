@@ -1,4 +1,4 @@
-"""Panels and menus (no logic): the "VoRTX" sidebar tab in the 3D View."""
+"""Panels and menus (no logic): the "VoRTX" sidebar tab in the 3D View and File > Import."""
 
 import bpy
 
@@ -7,11 +7,18 @@ from . import panels
 classes: tuple = (*panels.classes,)
 
 
+def menu_import(self: bpy.types.Menu, context: bpy.types.Context) -> None:
+    # Where users look for importers first; the sidebar tab has the same button.
+    self.layout.operator("vortx.import_capture", text="VoRTX Capture (photos, video, transforms.json)")
+
+
 def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
+    bpy.types.TOPBAR_MT_file_import.append(menu_import)
 
 
 def unregister() -> None:
+    bpy.types.TOPBAR_MT_file_import.remove(menu_import)
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)
