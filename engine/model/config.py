@@ -1,0 +1,112 @@
+"""`VortxConfig`: every hyper-parameter that changes the network's shape or behaviour.
+
+The config is saved next to the weights (JSON), so a weights file always rebuilds the exact network
+that produced it. Runtime knobs that do not change results (chunk sizes, device) are not here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass
+from typing import Any
+
+# Level 0 is the coarsest. The names are the official checkpoint's ModuleDict keys.
+LEVEL_NAMES: tuple[str, str, str] = ("coarse", "medium", "fine")
+# Each level's voxel size is the fine voxel size times this factor (16 / 8 / 4 cm by default).
+LEVEL_SCALES: tuple[int, int, int] = (4, 2, 1)
+# Image downsampling of the 2D feature map used at each level (1/16, 1/8, 1/4 of the image).
+LEVEL_IMAGE_STRIDES: tuple[int, int, int] = (16, 8, 4)
+
+BACKBONES = ("mnasnet", "efficientnet_lite0")
+FUSIONS = ("transformer", "average")
+
+
+@dataclass(frozen=True)
+class VortxConfig:
+    """Network shape and behaviour.
+
+    backbone:           "efficientnet_lite0" (ImageNet weights ship offline; our default) or
+                        "mnasnet" (MnasNet-1.0, the official model's trunk).
+    feature_channels:   2D feature channels per level (coarse, medium, fine); official (80, 40, 24).
+    unet_base_widths:   SparseUNet base width per level; the UNet outputs 3x this. Official (32, 16, 8).
+    voxel_size:         fine voxel edge in metres; medium and coarse are 2x and 4x.
+    fusion:             "transformer" (VoRTX) or "average" (ablation: masked mean of back-projected
+                        features, no transformer and no projective occupancy).
+    attn_layers, attn_heads: transformer depth and heads (official 2, 2).
+    use_proj_occ:       pooling over views. True: softmax over projective-occupancy logits with a
+                        null view (fine-tuning and inference). False: masked mean (training phase 1).
+                        Ignored when fusion == "average".
+    voxel_dropout:      in training, keep at most `max_train_voxels` random voxels per sample after
+                        upsampling (medium, fine), as the authors do to bound memory.
+    """
+
+    backbone: str = "efficientnet_lite0"
+    feature_channels: tuple[int, int, int] = (80, 40, 24)
+    unet_base_widths: tuple[int, int, int] = (32, 16, 8)
+    voxel_size: float = 0.04
+    fusion: str = "transformer"
+    attn_layers: int = 2
+    attn_heads: int = 2
+    use_proj_occ: bool = True
+    voxel_dropout: bool = True
+    max_train_voxels: tuple[int, int] = (2**14, 2**16)
+
+    def __post_init__(self) -> None:
+        # Lists arrive from JSON; store tuples so the config stays hashable and comparable.
+        for name in ("feature_channels", "unet_base_widths", "max_train_voxels"):
+            object.__setattr__(self, name, tuple(int(v) for v in getattr(self, name)))
+        if self.backbone not in BACKBONES:
+            raise ValueError(f"backbone must be one of {BACKBONES}, got {self.backbone!r}")
+        if self.fusion not in FUSIONS:
+            raise ValueError(f"fusion must be one of {FUSIONS}, got {self.fusion!r}")
+        if len(self.feature_channels) != 3 or len(self.unet_base_widths) != 3:
+            raise ValueError("feature_channels and unet_base_widths need one value per level (3)")
+        if len(self.max_train_voxels) != 2:
+            raise ValueError("max_train_voxels needs two values (medium, fine)")
+        if self.fusion == "transformer":
+            for c in self.feature_channels:
+                if c % self.attn_heads:
+                    raise ValueError(f"feature channels {c} not divisible by attn_heads {self.attn_heads}")
+        if self.voxel_size <= 0:
+            raise ValueError("voxel_size must be positive")
+
+    @classmethod
+    def official(cls) -> "VortxConfig":
+        """The configuration of the authors' released checkpoint (MnasNet, full widths, proj-occ pooling)."""
+        return cls(backbone="mnasnet", use_proj_occ=True)
+
+    def level_voxel_size(self, level: int) -> float:
+        """Voxel edge in metres at `level` (0 = coarse)."""
+        return self.voxel_size * LEVEL_SCALES[level]
+
+    def unet_in_channels(self, level: int) -> int:
+        """Input channels of the level's 3D CNN: [upsampled features | fused 2D features | upsampled logit]."""
+        if level == 0:
+            return self.feature_channels[0]
+        return 3 * self.unet_base_widths[level - 1] + self.feature_channels[level] + 1
+
+    def unet_out_channels(self, level: int) -> int:
+        return 3 * self.unet_base_widths[level]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {f.name: _jsonable(getattr(self, f.name)) for f in dataclasses.fields(self)}
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "VortxConfig":
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown VortxConfig fields: {unknown}")
+        return cls(**data)
+
+    @classmethod
+    def from_json(cls, text: str) -> "VortxConfig":
+        return cls.from_dict(json.loads(text))
+
+
+def _jsonable(value: Any) -> Any:
+    return list(value) if isinstance(value, tuple) else value

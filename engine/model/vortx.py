@@ -1,0 +1,256 @@
+"""`VortxNet`: the VoRTX network as composable steps.
+
+Per level l (0 = coarse 16 cm, 1 = medium 8 cm, 2 = fine 4 cm):
+  2D pyramid features (view-direction encoded)  --encode_views-->  (V, C_l, H/s, W/s)
+  back-project at the voxels + fuse over views  --fuse-->          (N, C_l), LayerNorm'd
+  [up-features | fused | up-logit] -> SparseUNet -> 1x1 head      --level_step-->  features, logits
+  keep logit > 0, copy to the 8 children        --prune_and_upsample-->  next level's input
+The fine logits are TSDF logits (TSDF = 1.05 tanh). The inference driver (`engine.recon`) calls the
+steps itself so it can fuse per tile and run each level's 3D CNN over the whole scene; `forward`
+composes the same steps for a training batch of crops.
+
+Submodule names are the official checkpoint's (without its `vortx.` prefix): `cnn2d`, `upsampler`,
+`view_embedders.<level>`, `layer_norms.<level>`, `mv_fusion.<level>`, `cnns3d.<level>`,
+`output_layers.<level>`, with level names coarse / medium / fine.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import torch
+from torch import nn
+
+from ..sparse import SparseConv3d, SparseVoxels
+from .backbone_efficientnet import EfficientNetLite0Pyramid
+from .backbone_mnasnet import MnasNetPyramid
+from .backprojection import project_points, sample_features
+from .coarse_to_fine import Upsampler, subsample_per_sample
+from .config import LEVEL_IMAGE_STRIDES, LEVEL_NAMES, VortxConfig
+from .fpn import FeaturePyramid
+from .fusion import AverageFusion, TransformerFusion
+from .outputs import FusionOutput, LevelOutput, LevelPrediction, VortxBatch
+from .unet3d import SparseUNet
+from .view_encoding import ViewDirectionEncoder
+
+# Voxels per fusion chunk: bounds the (chunk, V, C) attention activations; ~2k-16k sequences is
+# the fast range for the transformer on CPU (platform notes section 4).
+DEFAULT_FUSION_CHUNK = 8192
+# Images per backbone call at inference; small chunks avoid the allocation cost of big batches on CPU.
+DEFAULT_IMAGE_CHUNK = 4
+
+
+def build_pyramid(config: VortxConfig, pretrained: bool) -> FeaturePyramid:
+    if config.backbone == "mnasnet":
+        # No MnasNet ImageNet weights exist offline; `pretrained` has nothing to load here.
+        return MnasNetPyramid(config.feature_channels)
+    return EfficientNetLite0Pyramid(config.feature_channels, pretrained=pretrained)
+
+
+class VortxNet(nn.Module):
+    """The VoRTX network. `pretrained_backbone` loads ImageNet weights (EfficientNet-Lite0 only)."""
+
+    def __init__(self, config: VortxConfig | None = None, pretrained_backbone: bool = False) -> None:
+        super().__init__()
+        config = config or VortxConfig()
+        self.config = config
+        self.use_proj_occ = config.use_proj_occ
+        self.fusion_chunk = DEFAULT_FUSION_CHUNK
+        self.image_chunk = DEFAULT_IMAGE_CHUNK
+
+        self.cnn2d = build_pyramid(config, pretrained_backbone)
+        self.upsampler = Upsampler()
+        self.view_embedders = nn.ModuleDict()
+        self.layer_norms = nn.ModuleDict()
+        self.mv_fusion = nn.ModuleDict()
+        self.cnns3d = nn.ModuleDict()
+        self.output_layers = nn.ModuleDict()
+        for level, name in enumerate(LEVEL_NAMES):
+            channels = config.feature_channels[level]
+            self.view_embedders[name] = ViewDirectionEncoder(channels)
+            self.layer_norms[name] = nn.LayerNorm(channels)
+            if config.fusion == "transformer":
+                self.mv_fusion[name] = TransformerFusion(channels, config.attn_layers, config.attn_heads)
+            else:
+                self.mv_fusion[name] = AverageFusion()
+            self.cnns3d[name] = SparseUNet(config.unet_in_channels(level), config.unet_base_widths[level])
+            self.output_layers[name] = SparseConv3d(config.unet_out_channels(level), 1, kernel_size=1)
+
+    # --- configuration ------------------------------------------------------------------------
+
+    @property
+    def backbone(self) -> FeaturePyramid:
+        """The 2D feature pyramid (`trunk_modules()`, `freeze_trunk()`); stored as `cnn2d`."""
+        return self.cnn2d
+
+    def set_use_proj_occ(self, use_proj_occ: bool) -> None:
+        """Switch view pooling: softmax-with-null over projective occupancy (True) or masked mean."""
+        self.use_proj_occ = bool(use_proj_occ)
+        self.config = dataclasses.replace(self.config, use_proj_occ=self.use_proj_occ)
+
+    # --- steps --------------------------------------------------------------------------------
+
+    def encode_views(self, images: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor) -> list[torch.Tensor]:
+        """images (V, 3, H, W) RGB 0-255; K (V, 3, 3) pixels; cam_to_world (V, 4, 4)
+        -> per level (V, C_l, H/s_l, W/s_l), s = 16, 8, 4, view-direction encoding applied.
+
+        In eval mode the images go through the backbone in chunks (same result, less memory); in
+        train mode all at once, so BatchNorm sees the whole batch.
+        """
+        chunk = self.image_chunk if not self.training else len(images)
+        pieces = [self.cnn2d(images[i : i + chunk]) for i in range(0, len(images), max(chunk, 1))]
+        maps = [torch.cat([p[level] for p in pieces]) for level in range(len(LEVEL_NAMES))]
+        return [
+            self.view_embedders[name](maps[level], K, cam_to_world, LEVEL_IMAGE_STRIDES[level])
+            for level, name in enumerate(LEVEL_NAMES)
+        ]
+
+    def fuse(
+        self,
+        level: int,
+        points_world: torch.Tensor,
+        feats: torch.Tensor,
+        K: torch.Tensor,
+        cam_to_world: torch.Tensor,
+        image_hw: tuple[int, int],
+        with_views: bool = True,
+    ) -> FusionOutput:
+        """Back-project `feats` to the points and fuse over views.
+
+        points_world (M, 3) voxel corners in metres; feats (V, C, h, w) from encode_views at this
+        level; K (V, 3, 3) in image pixels; cam_to_world (V, 4, 4); image_hw the images' (H, W).
+        with_views=False drops the (M, V) per-view outputs (inference needs only the features).
+        """
+        stride = LEVEL_IMAGE_STRIDES[level]
+        h, w = feats.shape[-2:]
+        if (h, w) != (-(-image_hw[0] // stride), -(-image_hw[1] // stride)):
+            raise ValueError(f"level {level} feature map {(h, w)} does not belong to images of size {image_hw}")
+        name = LEVEL_NAMES[level]
+        points = points_world.to(torch.float32)
+        chunks = [self._fuse_chunk(name, points[i : i + self.fusion_chunk], feats, K, cam_to_world, stride)
+                  for i in range(0, len(points), self.fusion_chunk)]
+        if not chunks:  # no points: keep shapes consistent
+            chunks = [self._fuse_chunk(name, points, feats, K, cam_to_world, stride)]
+        features = self.layer_norms[name](torch.cat([c[0] for c in chunks]))
+        if not with_views:
+            return FusionOutput(features)
+        logits = None if chunks[0][1] is None else torch.cat([c[1] for c in chunks])
+        return FusionOutput(
+            features=features,
+            proj_occ_logits=logits,
+            valid=torch.cat([c[2].valid for c in chunks]),
+            depth=torch.cat([c[2].depth for c in chunks]),
+            pixels=torch.cat([c[2].pixels for c in chunks]),
+        )
+
+    def _fuse_chunk(self, name: str, points: torch.Tensor, feats: torch.Tensor, K: torch.Tensor,
+                    cam_to_world: torch.Tensor, stride: int):
+        projection = project_points(points, K, cam_to_world, stride, tuple(feats.shape[-2:]))
+        sampled = sample_features(feats, projection.grid)  # (m, V, C)
+        pooled, logits = self.mv_fusion[name](sampled, projection.depth, projection.valid, self.use_proj_occ)
+        return pooled, logits, projection
+
+    def level_step(
+        self, level: int, coords: torch.Tensor, fused: torch.Tensor, previous: LevelOutput | None
+    ) -> LevelOutput:
+        """3D CNN + head at one level.
+
+        coords (N, 4) [batch, x, y, z] level units; fused (N, C_l) from fuse(); previous: the
+        upsampled output of the level above, row-aligned with coords (None at level 0).
+        """
+        name = LEVEL_NAMES[level]
+        if level == 0:
+            x = fused
+        else:
+            if previous is None:
+                raise ValueError(f"level {level} needs the upsampled output of level {level - 1}")
+            if previous.coords.shape != coords.shape or not torch.equal(previous.coords, coords):
+                raise ValueError("previous.coords must be the same rows as coords (upsampled, then subsampled alike)")
+            dtype = torch.promote_types(fused.dtype, previous.features.dtype)
+            x = torch.cat([previous.features.to(dtype), fused.to(dtype), previous.logits[:, None].to(dtype)], dim=1)
+        if len(coords) == 0:
+            width = self.config.unet_out_channels(level)
+            return LevelOutput(coords, x.new_zeros(0, width), x.new_zeros(0))
+        voxels = self.cnns3d[name](SparseVoxels(coords, x, stride=1))
+        logits = self.output_layers[name](voxels).feats[:, 0]
+        return LevelOutput(coords, voxels.feats, logits)
+
+    def prune_and_upsample(self, out: LevelOutput) -> LevelOutput:
+        """Keep voxels with logit > 0 and copy each to its 8 children (next level's coordinates)."""
+        kept = out.select(out.logits > 0)
+        return LevelOutput(
+            coords=self.upsampler.upsample_coords(kept.coords),
+            features=self.upsampler.upsample_values(kept.features),
+            logits=self.upsampler.upsample_values(kept.logits),
+        )
+
+    # --- training forward ---------------------------------------------------------------------
+
+    def forward(self, batch: VortxBatch) -> dict[str, LevelPrediction]:
+        """Coarse-to-fine over a batch of crops -> {level name: LevelPrediction}.
+
+        Levels after one where no voxel has logit > 0 are absent (as in the authors' code). In train
+        mode with `config.voxel_dropout`, at most `config.max_train_voxels` random voxels per sample
+        are kept after upsampling at the medium and fine levels.
+        """
+        b, v = batch.images.shape[:2]
+        image_hw = tuple(batch.images.shape[-2:])
+        # One backbone pass over all B*V images (BatchNorm statistics over the whole batch, as the
+        # authors), then split per sample: each sample only sees its own views.
+        maps = self.encode_views(batch.images.flatten(0, 1), batch.K.flatten(0, 1), batch.cam_to_world.flatten(0, 1))
+        feats = [[m.view(b, v, *m.shape[1:])[i] for m in maps] for i in range(b)]
+
+        predictions: dict[str, LevelPrediction] = {}
+        coords = dense_grid_coords(b, [c // 4 for c in batch.crop_shape], batch.images.device)
+        previous: LevelOutput | None = None
+        for level, name in enumerate(LEVEL_NAMES):
+            if level > 0:
+                previous = self.prune_and_upsample(out)
+                if len(previous) == 0:
+                    break
+                if self.training and self.config.voxel_dropout:
+                    previous = previous.select(subsample_per_sample(previous.coords, self.config.max_train_voxels[level - 1]))
+                coords = previous.coords
+            voxel_size = self.config.level_voxel_size(level)
+            points = batch.origin.to(torch.float32)[coords[:, 0]] + coords[:, 1:].to(torch.float32) * voxel_size
+            fused, views = self._fuse_batch(level, coords, points, feats, batch, image_hw)
+            out = self.level_step(level, coords, fused, previous)
+            predictions[name] = LevelPrediction(coords=coords, points=points, logits=out.logits,
+                                                voxel_size=voxel_size, **views)
+        return predictions
+
+    def _fuse_batch(self, level, coords, points, feats, batch: VortxBatch, image_hw):
+        """fuse() per sample, scattered back into the batch's row order."""
+        n, v = len(coords), batch.images.shape[1]
+        fused = None
+        views: dict[str, torch.Tensor | None] = {
+            "proj_occ_logits": None,
+            "valid": torch.zeros(n, v, dtype=torch.bool, device=coords.device),
+            "depth": points.new_zeros(n, v),
+            "pixels": points.new_zeros(n, v, 2),
+        }
+        for i in range(batch.batch_size):
+            rows = torch.nonzero(coords[:, 0] == i).view(-1)
+            if len(rows) == 0:
+                continue
+            fo = self.fuse(level, points[rows], feats[i][level], batch.K[i], batch.cam_to_world[i], image_hw)
+            if fused is None:
+                fused = fo.features.new_zeros(n, fo.features.shape[1])
+            fused = fused.index_copy(0, rows, fo.features)
+            if fo.proj_occ_logits is not None:
+                if views["proj_occ_logits"] is None:
+                    views["proj_occ_logits"] = fo.proj_occ_logits.new_zeros(n, v)
+                views["proj_occ_logits"] = views["proj_occ_logits"].index_copy(0, rows, fo.proj_occ_logits)
+            for key in ("valid", "depth", "pixels"):
+                views[key][rows] = getattr(fo, key).to(views[key].dtype)
+        if fused is None:
+            fused = points.new_zeros(n, self.config.feature_channels[level])
+        return fused, views
+
+
+def dense_grid_coords(batch_size: int, shape: list[int], device: torch.device) -> torch.Tensor:
+    """Every voxel of a (X, Y, Z) grid for each sample: (B*X*Y*Z, 4) int64 [batch, x, y, z], batch-major."""
+    axes = [torch.arange(s, device=device) for s in shape]
+    grid = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
+    batch = torch.arange(batch_size, device=device).repeat_interleave(len(grid))
+    return torch.cat([batch[:, None], grid.repeat(batch_size, 1)], dim=1)
