@@ -58,3 +58,23 @@ def test_voxel_losses_use_mask_and_log_l1():
     assert torch.isclose(L.occupancy_loss(logits, coords, occ, mask), torch.log(torch.tensor(2.0)))
     empty = L.occupancy_loss(logits, coords, occ, torch.zeros_like(mask))
     assert empty.item() == 0.0
+
+
+def test_batch_projective_loss_covers_sample_1():
+    """The network-prediction form: voxels of sample 1 contribute (perturbing only them changes the loss)."""
+    g = torch.Generator().manual_seed(1)
+    N, V, B, H, W = 40, 3, 2, 24, 32
+    sample = torch.cat([torch.zeros(N // 2), torch.ones(N // 2)]).long()
+    pixels = torch.stack([torch.rand(N, V, generator=g) * (W - 1), torch.rand(N, V, generator=g) * (H - 1)], -1)
+    depth = 1.8 + 0.4 * torch.rand(N, V, generator=g)
+    valid = torch.ones(N, V, dtype=torch.bool)
+    maps = torch.full((B, V, H, W), 2.0)
+    logits = torch.randn(N, V, generator=g)
+    base = L.projective_occupancy_loss_batch(logits, sample, pixels, depth, valid, maps, 0.12)
+    pert = logits.clone()
+    pert[sample == 1] += 3.0
+    assert not torch.isclose(base, L.projective_occupancy_loss_batch(pert, sample, pixels, depth, valid, maps, 0.12))
+    # sample 1's depth map is the one used for sample 1's voxels
+    maps2 = maps.clone()
+    maps2[1] = 5.0
+    assert not torch.isclose(base, L.projective_occupancy_loss_batch(logits, sample, pixels, depth, valid, maps2, 0.12))

@@ -31,12 +31,11 @@ class PhaseConfig:
 class TrainConfig:
     name: str = "vortx"
     rooms: list[str] = field(default_factory=list)  # room folders, or folders holding room folders
-    model: dict[str, Any] = field(default_factory=dict)  # keyword arguments of VortxConfig
+    model: dict[str, Any] = field(default_factory=dict)  # VortxConfig fields (incl. max_train_voxels)
     crop_size: tuple[int, int, int] = (32, 32, 24)  # fine (4 cm) voxels; must be a multiple of 4
     voxel_size: float = 0.04
     n_views: int = 8
     image_size: tuple[int, int] = (160, 120)  # (W, H) the images are resized to
-    max_voxels: tuple[Optional[int], Optional[int], Optional[int]] = (None, 2**14, 2**16)  # per sample
     augment_rotate: bool = True
     augment_mirror: bool = True
     augment_photometric: bool = True
@@ -88,7 +87,7 @@ def _build(cls, data: dict[str, Any], where: str):
     for key, value in data.items():
         if key in ("phase1", "phase2"):
             value = _build(PhaseConfig, value, f"{where}.{key}")
-        elif key in ("crop_size", "image_size", "max_voxels"):
+        elif key in ("crop_size", "image_size"):
             value = tuple(value)
         kwargs[key] = value
     return cls(**kwargs)

@@ -489,7 +489,7 @@ def make_crop(room: RoomData, settings: CropSettings, rng: np.random.Generator) 
         W = images.shape[2]
         images = images[:, :, ::-1]
         depths = depths[:, :, ::-1]
-        K[:, 0, 2] = (W - 1) - K[:, 0, 2]
+        K[:, 0, 2] = W - K[:, 0, 2]  # pixel j covers [j, j+1): the flip maps u to W - u
         poses = poses @ np.diag([-1.0, 1.0, 1.0, 1.0])  # flip the camera x axis: det stays +1
     return CropSample(
         images=torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float(),
@@ -574,7 +574,7 @@ def box_room(
     center = np.array(size) / 2
     poses, images, depths = [], [], []
     lo, hi = np.zeros(3), np.array(size)
-    uu, vv = np.meshgrid(np.arange(W), np.arange(H))
+    uu, vv = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)  # pixel centres (pixel j covers [j, j+1))
     rays_cam = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu, dtype=float)], -1)
     for i in range(n_frames):
         a = 2 * math.pi * i / n_frames

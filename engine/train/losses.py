@@ -75,11 +75,11 @@ def projective_occupancy_targets(
     """(target (M, V) float, supervised (M, V) bool) for one sample.
 
     Depth (V, H, W) metres, in pixels of the images K refers to, is sampled at the nearest pixel
-    (pixel index = round(u), the same index convention as the features); target = |z - depth| <
+    (pixel index = floor(u): pixel j covers [j, j+1), the engine's K convention); target = |z - depth| <
     trunc; supervised where the projection is inside the image, z > 0 and depth > 0."""
     V, H, W = depths.shape
     u, v, z = project_points(points, K, cam_to_world)
-    ui, vi = torch.round(u), torch.round(v)
+    ui, vi = torch.floor(u), torch.floor(v)
     inside = (ui >= 0) & (ui <= W - 1) & (vi >= 0) & (vi <= H - 1) & (z > 0)
     ui = ui.clamp(0, W - 1).long()
     vi = vi.clamp(0, H - 1).long()
@@ -120,3 +120,28 @@ def projective_occupancy_loss(
     if lg.numel() == 0:
         return _zero(torch.cat([x for x in logits if x is not None]))
     return F.binary_cross_entropy_with_logits(lg.float(), torch.cat(all_targets))
+
+
+def projective_occupancy_loss_batch(
+    logits: Tensor, sample: Tensor, pixels: Tensor, depth: Tensor, valid: Tensor, depth_maps: Tensor, trunc: float
+) -> Tensor:
+    """Projective-occupancy BCE over every (voxel, view) pair of the whole batch at one level.
+
+    logits, depth (N, V) and valid (N, V) bool from the network's prediction, pixels (N, V, 2) the
+    (u, v) image position, sample (N,) each voxel's batch index; depth_maps (B, V, H, W) metres.
+    The depth map of the voxel's own sample is read at the pixel holding (u, v) (floor: pixel j covers
+    [j, j+1), the engine's K convention); target |z - d| < trunc;
+    supervised where valid and d > 0. One mean over all samples (the official code's early return
+    supervised sample 0 only)."""
+    B, V, H, W = depth_maps.shape
+    ui = torch.floor(pixels[..., 0]).long()
+    vi = torch.floor(pixels[..., 1]).long()
+    inside = (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H)
+    b = sample.long()[:, None].expand_as(ui)
+    view = torch.arange(V, device=logits.device)[None, :].expand_as(ui)
+    d = depth_maps[b, view, vi.clamp(0, H - 1), ui.clamp(0, W - 1)]
+    sup = valid.bool() & inside & (d > 0)
+    if not bool(sup.any()):
+        return _zero(logits)
+    target = ((depth - d).abs() < trunc).float()
+    return F.binary_cross_entropy_with_logits(logits[sup].float(), target[sup])

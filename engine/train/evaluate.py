@@ -1,0 +1,146 @@
+"""Held-out evaluation of trained weights and the picture for the model card.
+
+For every held-out room (rendered, never used in training): reconstruct it with `engine.recon`
+from its colour frames and poses only, then the Atlas metrics (`engine.eval.evaluate_mesh`, trimmed
+to the observed ground-truth voxels) against `mesh_gt.ply`; the plain room box fitted to the ground
+truth (`engine.eval.room_box_from_tsdf`) is measured the same way as the floor.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Optional, Sequence
+
+import numpy as np
+
+from .dataset import GT_FILE, precompute_room
+
+
+def evaluate_rooms(
+    rooms: Sequence[Path],
+    weights: dict[str, Optional[str]],
+    recon_overrides: Optional[dict] = None,
+    out_dir: Optional[Path] = None,
+    box: bool = True,
+) -> dict:
+    """weights: label -> weights path. Returns {label: {room: metrics dict}, ...} plus means."""
+    from ..capture import load_capture
+    from ..eval.mesh_metrics import evaluate_mesh
+    from ..eval.room_box import room_box_from_tsdf
+    from ..mesh_io import read_ply, write_ply
+    from ..recon import reconstruct
+    from ..recon.settings import ReconSettings
+    from ..tsdf.volume import TsdfVolume
+
+    results: dict = {label: {} for label in weights}
+    if box:
+        results["room box"] = {}
+    for room in map(Path, rooms):
+        precompute_room(room)
+        volume = TsdfVolume.load(room / GT_FILE)
+        gt = read_ply(room / "mesh_gt.ply")
+        capture = load_capture(room)
+        for label, path in weights.items():
+            settings = ReconSettings(weights=str(path) if path else None, **(recon_overrides or {}))
+            t0 = time.time()
+            res = reconstruct(capture, settings)
+            m = evaluate_mesh(res.mesh, gt, observed=volume).as_dict()
+            m["seconds"] = round(time.time() - t0, 1)
+            m["faces"] = int(len(res.mesh.faces))
+            results[label][room.name] = m
+            if out_dir is not None:
+                Path(out_dir).mkdir(parents=True, exist_ok=True)
+                write_ply(Path(out_dir) / f"{room.name}_{_slug(label)}.ply", res.mesh.vertices, res.mesh.faces)
+            print(f"{room.name} {label}: F {m['fscore']:.3f} acc {m['acc']:.3f} comp {m['comp']:.3f}", flush=True)
+        if box:
+            m = evaluate_mesh(room_box_from_tsdf(volume), gt, observed=volume).as_dict()
+            results["room box"][room.name] = m
+            print(f"{room.name} room box: F {m['fscore']:.3f}", flush=True)
+    summary = {}
+    for label, per_room in results.items():
+        keys = ("acc", "comp", "prec", "recall", "fscore")
+        summary[label] = {k: float(np.mean([m[k] for m in per_room.values()])) for k in keys} if per_room else {}
+    return {"per_room": results, "mean": summary}
+
+
+def _slug(label: str) -> str:
+    return "".join(c if c.isalnum() else "_" for c in label)
+
+
+def metrics_table(result: dict) -> str:
+    """Markdown table of the mean metrics."""
+    lines = ["| method | F-score | precision | recall | acc (m) | comp (m) |", "|---|---|---|---|---|---|"]
+    for label, m in result["mean"].items():
+        if m:
+            lines.append(f"| {label} | {m['fscore']:.3f} | {m['prec']:.3f} | {m['recall']:.3f} | "
+                         f"{m['acc']:.3f} | {m['comp']:.3f} |")
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------------------------
+# Picture: shaded renders of meshes side by side (numpy rasteriser from engine.recon.colour)
+
+
+def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
+    fwd = target - eye
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    down = np.cross(fwd, right)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([right, down, fwd], 1)
+    pose[:3, 3] = eye
+    return pose
+
+
+def shade(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Grey-shaded uint8 image of a depth map (normals from depth gradients, headlight)."""
+    h, w = depth.shape
+    valid = np.isfinite(depth)
+    d = np.where(valid, depth, 0.0)
+    u, v = np.meshgrid(np.arange(w), np.arange(h))
+    pts = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], -1)
+    dx = np.gradient(pts, axis=1)
+    dy = np.gradient(pts, axis=0)
+    n = np.cross(dx, dy)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True) + 1e-12
+    light = np.abs(n[..., 2])
+    img = (40 + 200 * light).clip(0, 255)
+    img[~valid] = 255
+    return img.astype(np.uint8)
+
+
+def render_side_by_side(meshes: Sequence, labels: Sequence[str], out_path: Path, size=(320, 240),
+                        clip_above: Optional[float] = None) -> Path:
+    """One elevated view of each mesh (same camera), ceilings clipped, written as one PNG."""
+    import cv2
+
+    from ..recon.colour import render_depth
+
+    ref = np.asarray(meshes[-1].vertices, np.float64)
+    lo, hi = ref.min(0), ref.max(0)
+    center = (lo + hi) / 2
+    top = hi[2] - 0.3 if clip_above is None else clip_above
+    eye = center + np.array([-(hi[0] - lo[0]) * 0.55, -(hi[1] - lo[1]) * 0.85, (hi[2] - lo[2]) * 1.9])
+    pose = _look_at(eye, center - np.array([0, 0, 0.3]))
+    w, h = size
+    K = np.array([[0.9 * w, 0, w / 2], [0, 0.9 * w, h / 2], [0, 0, 1.0]])
+    panels = []
+    for mesh, label in zip(meshes, labels):
+        v = np.asarray(mesh.vertices, np.float64)
+        f = np.asarray(mesh.faces)
+        keep = (v[f][:, :, 2] < top).all(1)  # drop the ceiling so the room is visible from above
+        depth = render_depth(v, f[keep], K, pose, size) if keep.any() else np.full((h, w), np.inf, np.float32)
+        img = cv2.cvtColor(shade(depth, K), cv2.COLOR_GRAY2BGR)
+        cv2.putText(img, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 160), 1, cv2.LINE_AA)
+        panels.append(img)
+    out_path = Path(out_path)
+    out_path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(out_path), np.concatenate(panels, 1), [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    return out_path
+
+
+def save_json(obj: dict, path: Path) -> None:
+    Path(path).write_text(json.dumps(obj, indent=2))
