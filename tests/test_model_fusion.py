@@ -14,6 +14,16 @@ H, W = 48, 64
 TINY = dict(backbone="mnasnet", feature_channels=(16, 8, 8), unet_base_widths=(4, 4, 4))
 
 
+@pytest.fixture(autouse=True, scope="module")
+def single_thread():
+    """One intra-op thread: these tensors are tiny, and on a shared 2-core machine two spinning
+    OpenMP threads make them 30-100x slower."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
+
+
 def look_at(eye, target) -> torch.Tensor:
     """Camera-to-world (4, 4) float64 in OpenCV axes (x right, y down, z forward), world Z up."""
     eye = torch.tensor(eye, dtype=torch.float64)

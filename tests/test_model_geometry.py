@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 import torch
 
 from engine.model.backprojection import project_points, sample_features
@@ -11,6 +12,16 @@ from engine.model.view_encoding import ENCODING_CHANNELS, encode_directions, ray
 
 H, W = 48, 64
 K = torch.tensor([[50.0, 0.0, 31.0], [0.0, 55.0, 23.0], [0.0, 0.0, 1.0]])
+
+
+@pytest.fixture(autouse=True, scope="module")
+def single_thread():
+    """One intra-op thread: these tensors are tiny, and on a shared 2-core machine two spinning
+    OpenMP threads make them 30-100x slower."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
 
 
 def rotation_z(angle: float) -> torch.Tensor:
