@@ -1,5 +1,13 @@
-"""The Capture model and loaders for each on-disk layout."""
+"""The Capture model and loaders for each on-disk layout.
 
+`load_capture(path, **options)` detects the layout (photo folder, COLMAP, transforms.json, ScanNet,
+video) and returns a `Capture`; `load_image(path)` decodes one photo as uint8 RGB (H, W, 3).
+"""
+
+from .detect import FORMATS, detect_format
+from .images import load_image
+from .load import load_capture
 from .model import Capture, Frame
+from .options import LoadOptions
 
-__all__ = ["Capture", "Frame"]
+__all__ = ["Capture", "Frame", "FORMATS", "LoadOptions", "detect_format", "load_capture", "load_image"]

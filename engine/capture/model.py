@@ -38,7 +38,8 @@ class Capture:
     format: str  # "images", "colmap", "transforms", "scannet", "video"
     frames: list[Frame]
     metric: bool = False  # True when poses are already in metres (ScanNet layout, metric transforms.json)
-    warnings: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)  # problems the user should know of (skipped frames...)
+    notes: list[str] = field(default_factory=list)  # what loading did that is no problem (where derived files went)
 
     @property
     def posed_frames(self) -> list[Frame]:

@@ -1,0 +1,121 @@
+"""Photo files: finding them, checking them cheaply at load time, and decoding them.
+
+Sizes are read with Pillow (header + EXIF only) and the pixels are decoded with OpenCV; both apply
+the EXIF orientation the same way (checked by tests for all 8 orientations), so `Frame.width/height`
+always match what `load_image` returns.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import cv2
+import numpy as np
+from PIL import Image
+
+from ..errors import CaptureError
+from . import exif as exif_tags
+from .naming import natural_key
+
+IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+# Pillow format names that OpenCV decodes too ("MPO" is the multi-picture JPEG some cameras write).
+_DECODABLE_FORMATS = ("JPEG", "MPO", "PNG")
+
+
+def is_image_file(path: Path) -> bool:
+    """A JPEG/PNG by suffix (any case); hidden files such as macOS `._IMG_1.jpg` do not count."""
+    return path.suffix.lower() in IMAGE_SUFFIXES and not path.name.startswith(".") and path.is_file()
+
+
+def list_images(folder: Path) -> list[Path]:
+    """The photos directly inside `folder` (not recursive), in natural order (frame2 < frame10)."""
+    return sorted((p for p in folder.iterdir() if is_image_file(p)), key=lambda p: natural_key(p.name))
+
+
+@dataclass(frozen=True)
+class ImageInfo:
+    """What the loaders need to know about one photo without keeping its pixels."""
+
+    path: Path
+    width: int  # after EXIF orientation
+    height: int  # after EXIF orientation
+    orientation: int  # EXIF orientation 1..8 (1 = none)
+    focal_px: Optional[float]  # focal length in pixels from EXIF, None when unknown
+    digest: str  # content hash: byte-identical files have equal digests
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return (self.width, self.height)
+
+
+def read_image_info(path: Path, verify: bool = True) -> ImageInfo:
+    """Size, orientation, EXIF focal length and content hash of one photo.
+
+    With `verify`, the pixels are decoded too, at 1/8 scale through libjpeg's DCT scaling
+    (about 5 ms for a 2-megapixel JPEG), because a truncated JPEG has a valid header and OpenCV
+    would silently decode it padded with grey; Pillow raises on it. Raises CaptureError naming the
+    file when it is missing, not a JPEG/PNG, or corrupt.
+    """
+    try:
+        data = path.read_bytes()
+    except OSError as error:
+        raise CaptureError(f"cannot read image {path}: {error.strerror or error}. Check that the file exists "
+                           "and is readable.") from error
+    digest = hashlib.blake2b(data, digest_size=16).hexdigest()
+    try:
+        with Image.open(io.BytesIO(data)) as image:
+            if image.format not in _DECODABLE_FORMATS:
+                raise CaptureError(f"image {path} is a {image.format} file, not a JPEG or PNG: convert it to "
+                                   "JPEG or PNG, or remove it from the capture.")
+            stored_width, stored_height = image.size
+            exif = image.getexif()
+            if verify:
+                image.draft(image.mode, (max(1, stored_width // 8), max(1, stored_height // 8)))
+                image.load()
+    except CaptureError:
+        raise
+    except Exception as error:  # Pillow raises OSError, SyntaxError, ValueError... on broken files
+        raise CaptureError(f"image {path} is corrupt or not an image ({error}): re-export or re-copy it, "
+                           "or remove it from the capture.") from error
+    if stored_width < 1 or stored_height < 1:
+        raise CaptureError(f"image {path} has no pixels ({stored_width} x {stored_height}): remove it.")
+    orientation = exif_tags.orientation(exif)
+    width, height = stored_width, stored_height
+    if orientation in exif_tags.TRANSPOSING_ORIENTATIONS:
+        width, height = height, width
+    focal_px = exif_tags.focal_length_pixels(exif, stored_width, stored_height)
+    return ImageInfo(path=path, width=width, height=height, orientation=orientation, focal_px=focal_px,
+                     digest=digest)
+
+
+def load_image(path: Path | str) -> np.ndarray:
+    """The photo as uint8 RGB, shape (H, W, 3), EXIF orientation applied.
+
+    Decodes through `cv2.imdecode` on the file's bytes rather than `cv2.imread`, because imread
+    cannot open non-ASCII paths on Windows. IMREAD_COLOR applies EXIF orientation and turns
+    grey, palette, alpha and 16-bit images into 8-bit 3-channel.
+    """
+    path = Path(path)
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8)
+    except OSError as error:
+        raise CaptureError(f"cannot read image {path}: {error.strerror or error}. Check that the file exists "
+                           "and is readable.") from error
+    bgr = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
+    if bgr is None:
+        raise CaptureError(f"image {path} cannot be decoded (corrupt or not a JPEG/PNG): re-export it or "
+                           "remove it from the capture.")
+    return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
+
+
+def intrinsics_from_focal(focal_px: float, width: int, height: int) -> np.ndarray:
+    """Pinhole K (3, 3) float64 with the principal point at the image centre.
+
+    The centre is (W/2, H/2): pixel (0, 0) covers [0, 1) x [0, 1), the convention of COLMAP and of
+    the Blender camera conversion (shift = (W/2 - cx) / max(W, H)).
+    """
+    return np.array([[focal_px, 0.0, width / 2.0], [0.0, focal_px, height / 2.0], [0.0, 0.0, 1.0]])

@@ -1,0 +1,46 @@
+"""`load_capture`: one entry point for every capture layout."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Callable, Optional
+
+from ..errors import CaptureError
+from ..jobs import CancelToken, ProgressFn
+from .colmap import load_colmap
+from .detect import FORMATS, detect_format
+from .folder import load_photo_folder
+from .model import Capture
+from .options import LoadOptions
+from .scannet import load_scannet
+from .transforms_json import load_transforms
+from .video import load_video
+
+_LOADERS: dict[str, Callable[..., Capture]] = {
+    "images": load_photo_folder,
+    "colmap": load_colmap,
+    "transforms": load_transforms,
+    "scannet": load_scannet,
+    "video": load_video,
+}
+
+
+def load_capture(path: Path | str, *, format: Optional[str] = None, progress: Optional[ProgressFn] = None,
+                 cancel: Optional[CancelToken] = None, **options: Any) -> Capture:
+    """Load the capture at `path`, detecting its layout (see `detect.py`) unless `format` is given.
+
+    `options` are the fields of `LoadOptions`: fps, blur_fraction (video), metric (override),
+    undistort, cache_dir, images_dir (COLMAP), verify_images. Returns a Capture whose `root` is
+    `path` as given (made absolute): a folder, or the video / transforms.json file. Raises
+    CaptureError with a message naming the file at fault and what to do; progress is reported
+    for the slow steps (checking photos, extracting video frames, undistorting).
+    """
+    path = Path(path).expanduser().absolute()
+    load_options = LoadOptions.from_kwargs(options)
+    if format is None:
+        format = detect_format(path)
+    elif format not in FORMATS:
+        raise CaptureError(f"unknown capture format {format!r}: choose one of {', '.join(FORMATS)}.")
+    elif not path.exists():
+        detect_format(path)  # raises the "does not exist" message
+    return _LOADERS[format](path, load_options, progress=progress, cancel=cancel)
