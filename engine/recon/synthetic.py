@@ -85,16 +85,23 @@ def make_synthetic_capture(
     height: float = 1.5,
     seed: int = 0,
 ) -> Capture:
-    """Render `frames` views into `directory` (frame_00000.png ...) and return the posed, metric Capture."""
+    """Render `frames` views into `directory` in the ScanNet layout that `load_capture` reads
+    (color/<i>.png, pose/<i>.txt camera-to-world, intrinsic/intrinsic_color.txt) and return the
+    posed, metric Capture."""
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+    for sub in ("color", "pose", "intrinsic"):
+        (directory / sub).mkdir(parents=True, exist_ok=True)
     room = np.asarray(room_size, dtype=np.float64)
     K = intrinsics(*image_size, fov_deg)
+    K4 = np.eye(4)
+    K4[:3, :3] = K
+    np.savetxt(directory / "intrinsic" / "intrinsic_color.txt", K4)
     poses = circle_poses(frames, np.array([room[0] / 2, room[1] / 2, height]), radius)
     out = []
     for i, pose in enumerate(poses):
         image, _ = render_box_room(K, pose, image_size, room, seed)
-        path = directory / f"frame_{i:05d}.png"
+        path = directory / "color" / f"{i}.png"
         cv2.imwrite(str(path), cv2.cvtColor(image, cv2.COLOR_RGB2BGR))
+        np.savetxt(directory / "pose" / f"{i}.txt", pose)
         out.append(Frame(image_path=path, width=image_size[0], height=image_size[1], K=K.copy(), pose=pose))
-    return Capture(root=directory, format="images", frames=out, metric=True)
+    return Capture(root=directory, format="scannet", frames=out, metric=True)

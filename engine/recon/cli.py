@@ -1,0 +1,110 @@
+"""`python -m engine reconstruct CAPTURE --out mesh.ply`: a capture with poses -> a mesh file + a JSON sidecar.
+
+The sidecar (`mesh.json` beside `mesh.ply`) records what the run did: timings per stage, voxels per
+level, views per tile, tile count, peak memory, the settings and the source capture. When no surface
+is found the (empty) mesh and the sidecar are still written, the reason is printed and the exit
+status is 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from ..errors import VortxError
+from ..jobs import TqdmProgress
+from .settings import ReconSettings
+
+MESH_SUFFIXES = (".ply", ".obj")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    defaults = ReconSettings()
+    parser.add_argument("capture", type=Path, help="capture folder (any layout `python -m engine info` reads), with poses")
+    parser.add_argument("--out", type=Path, required=True, help="output mesh, .ply or .obj (a .json sidecar is written beside it)")
+    parser.add_argument("--weights", default=None,
+                        help="weights .safetensors file, or 'random' (seeded random network: tests the pipeline, "
+                             "meaningless mesh); default: the weights shipped with the extension")
+    parser.add_argument("--voxel-size", type=float, default=defaults.voxel_size, help="finest voxel size in metres (default %(default)s)")
+    parser.add_argument("--views", type=int, default=defaults.views, help="keyframes per tile (default %(default)s)")
+    parser.add_argument("--tile-size", type=int, default=defaults.tile_size,
+                        help="tile width in fine voxels, a multiple of 4 (default %(default)s)")
+    parser.add_argument("--device", default=defaults.device, help="cpu or cuda (default %(default)s)")
+    parser.add_argument("--seed", type=int, default=defaults.seed, help="view sampling / random weights seed (default %(default)s)")
+    parser.add_argument("--image-size", type=int, default=defaults.image_long_side,
+                        help="long side in pixels the photos are resized to for the network (default %(default)s)")
+    parser.add_argument("--colour-views", type=int, default=defaults.colour_views,
+                        help="keyframes used for vertex colours, 0 = grey mesh (default %(default)s)")
+    parser.add_argument("--max-room-size", type=float, nargs=3, metavar=("X", "Y", "Z"), default=list(defaults.max_room_size),
+                        help="clip the scene bounds to this size in metres around the median camera (default %(default)s)")
+    parser.add_argument("--frustum-depth", type=float, default=defaults.frustum_depth,
+                        help="scene bounds = camera frusta cut at this depth in metres (default %(default)s)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def settings_from_args(args: argparse.Namespace) -> ReconSettings:
+    return ReconSettings(
+        weights=args.weights,
+        voxel_size=args.voxel_size,
+        views=args.views,
+        tile_size=args.tile_size,
+        device=args.device,
+        seed=args.seed,
+        image_long_side=args.image_size,
+        colour=args.colour_views > 0,
+        colour_views=max(args.colour_views, 1),
+        max_room_size=tuple(args.max_room_size),
+        frustum_depth=args.frustum_depth,
+    )
+
+
+def write_mesh(path: Path, mesh: Any) -> None:
+    from ..mesh_io import write_obj, write_ply
+
+    writer = write_ply if path.suffix.lower() == ".ply" else write_obj
+    writer(path, mesh.vertices, mesh.faces, normals=mesh.normals, colors=mesh.colors)
+
+
+def sidecar_path(mesh_path: Path) -> Path:
+    return mesh_path.with_suffix(".json")
+
+
+def run(args: argparse.Namespace) -> int:
+    out: Path = args.out
+    if out.suffix.lower() not in MESH_SUFFIXES:
+        raise VortxError(f"--out {out}: the mesh file must end in .ply or .obj")
+    settings = settings_from_args(args)
+    settings.validate()
+
+    from ..capture import load_capture
+    from .driver import reconstruct
+
+    capture = load_capture(args.capture)
+    progress = TqdmProgress(disable=args.quiet)
+    try:
+        result = reconstruct(capture, settings, progress=progress)
+    finally:
+        progress.close()
+
+    write_mesh(out, result.mesh)
+    sidecar = {
+        "capture": str(Path(args.capture).resolve()),
+        "capture_format": capture.format,
+        "output": str(out.resolve()),
+        **result.stats,
+        "tile_details": [t.to_dict() for t in result.tiles],
+    }
+    sidecar_path(out).write_text(json.dumps(sidecar, indent=1) + "\n")
+    for warning in result.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    seconds = result.stats.get("timings_s", {}).get("total", 0.0)
+    if result.message is not None:
+        print(f"error: no surface was reconstructed: {result.message}. Wrote an empty {out} and {sidecar_path(out)}.",
+              file=sys.stderr)
+        return 1
+    print(f"wrote {out}: {len(result.mesh.vertices)} vertices, {len(result.mesh.faces)} faces in {seconds:.1f} s "
+          f"(details in {sidecar_path(out)})")
+    return 0

@@ -1,0 +1,253 @@
+"""`reconstruct`: photos with poses -> room mesh, the official VoRTX inference (spec section 4).
+
+Per level (16 / 8 / 4 cm at the default 4 cm): every tile is back-projected and fused with its own
+views (streaming tiles and voxel chunks bounds memory), the fused features of all tiles are
+concatenated, and ONE 3D CNN pass runs over the whole scene, so tiles have no seams; then voxels
+with logit > 0 are kept and upsampled to the next level, where they are re-split by tile. The fine
+level's TSDF gives the mesh, coloured from the photos.
+"""
+
+from __future__ import annotations
+
+import time
+from contextlib import contextmanager
+from typing import Any, Iterator, Optional
+
+import numpy as np
+import torch
+
+from ..capture import Capture
+from ..jobs import CancelToken, ProgressCallback, check, report
+from .colour import ColourView, colour_vertices
+from .features import FeatureCache, encode_keyframes, keyframe_image_size
+from .fusion import fuse_tile
+from .images import load_resized, resized_size, scale_intrinsics
+from .memory import PeakMemory
+from .mesh import extract_mesh
+from .network import load_network
+from .plan import ReconPlan, plan_reconstruction
+from .result import ReconResult, empty_mesh
+from .settings import LEVEL_SCALES, ReconSettings, level_label
+from .tiles import TileState
+
+COLOUR_LONG_SIDE = 320  # colour and occlusion are resolved at this image size (vertices are 4 cm apart)
+
+
+class StageTimer:
+    """Wall-clock seconds per named stage (stages may repeat; times add up)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def stage(self, name: str) -> Iterator[None]:
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+
+
+def empty_scene_message(label: str) -> str:
+    return (
+        f"no voxel was predicted occupied at {label}: the weights may be untrained/random, or the poses "
+        "are not metric and gravity-aligned (metres, world Z up); check the capture's scale and orientation"
+    )
+
+
+def reconstruct(
+    capture: Capture,
+    settings: ReconSettings,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+    plan: Optional[ReconPlan] = None,
+) -> ReconResult:
+    """Reconstruct a mesh from a posed capture.
+
+    plan: a plan made earlier with `plan_reconstruction(capture, settings)` (e.g. to draw its tiles
+    while the run goes on: tile states change in place); made here when None.
+    Raises PoseError when no frame has a pose, WeightsError for unusable weights, Cancelled.
+    """
+    settings.validate()
+    device = resolve_device(settings.device)
+    model, config, weights_label = load_network(settings.weights, settings.seed, device)
+    return run_reconstruction(model, capture, settings, device, progress, cancel, plan, model_info={
+        "weights": weights_label,
+        "config": config.to_dict(),
+    })
+
+
+def resolve_device(name: str) -> torch.device:
+    from ..errors import VortxError
+
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise VortxError("device 'cuda' was requested but this PyTorch has no usable CUDA GPU; use --device cpu")
+    return device
+
+
+def run_reconstruction(
+    model: torch.nn.Module,
+    capture: Capture,
+    settings: ReconSettings,
+    device: torch.device,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+    plan: Optional[ReconPlan] = None,
+    model_info: Optional[dict[str, Any]] = None,
+) -> ReconResult:
+    """The pipeline with a ready model (any object with the engine.model inference API)."""
+    timer = StageTimer()
+    started = time.perf_counter()
+    stats: dict[str, Any] = {
+        "settings": settings.to_dict(),
+        "model": model_info or {},
+        "device": str(device),
+        "torch": torch.__version__,
+        "frames": len(capture.frames),
+    }
+    with PeakMemory(device) as memory:
+        with timer.stage("keyframes"):
+            plan = plan or plan_reconstruction(capture, settings, progress, cancel)
+        result = _run_planned(model, plan, settings, device, timer, stats, progress, cancel)
+    stats["timings_s"] = {**{k: round(v, 4) for k, v in timer.seconds.items()}, "total": round(time.perf_counter() - started, 4)}
+    stats["memory"] = memory.to_dict()
+    stats["warnings"] = list(plan.warnings)
+    result.warnings = list(plan.warnings)
+    stats["message"] = result.message
+    stats["tiles"]["states"] = {s.value: sum(t.state is s for t in plan.tiles) for s in TileState}
+    return result
+
+
+def _run_planned(
+    model: torch.nn.Module,
+    plan: ReconPlan,
+    settings: ReconSettings,
+    device: torch.device,
+    timer: StageTimer,
+    stats: dict[str, Any],
+    progress: Optional[ProgressCallback],
+    cancel: Optional[CancelToken],
+) -> ReconResult:
+    grid = plan.grid
+    active = plan.active_tiles
+    image_size = keyframe_image_size(plan.keyframes, settings.image_long_side)
+    stats.update({
+        "keyframes": len(plan.keyframes),
+        "keyframe_ids": list(plan.keyframe_ids),
+        "image_size": list(image_size),
+        "bounds": {"min": plan.bounds.minimum.tolist(), "max": plan.bounds.maximum.tolist(), "clipped": list(plan.bounds.clipped)},
+        "grid": {"origin": grid.origin.tolist(), "voxel_size": grid.voxel_size, "shape": grid.shape.tolist(),
+                 "tiles_per_axis": grid.tiles_per_axis.tolist()},
+        "tiles": {"count": len(plan.tiles), "active": len(active),
+                  "views_per_tile": [int(len(t.views)) for t in plan.tiles],
+                  "views_used": int(len(np.unique(np.concatenate([t.views for t in plan.tiles])))) if plan.tiles else 0},
+        "levels": [],
+    })
+    if not active:
+        return ReconResult(empty_mesh(), plan.tiles, stats, "no keyframe sees any part of the scene bounds")
+
+    with timer.stage("features"):
+        cache = encode_keyframes(model, plan.keyframes, plan.Ks, plan.poses, image_size, device,
+                                 settings.feature_chunk, settings.fp16_features, progress, cancel)
+    stats["feature_cache_bytes"] = cache.nbytes
+
+    final, message = _run_levels(model, plan, settings, cache, device, timer, stats, progress, cancel)
+    del cache
+    if final is None:
+        for tile in plan.tiles:
+            tile.state = TileState.EMPTY
+        return ReconResult(empty_mesh(), plan.tiles, stats, message)
+
+    report(progress, "mesh", 0, 1)
+    with timer.stage("mesh"):
+        from ..model.outputs import tsdf_from_logits
+
+        tsdf = tsdf_from_logits(final.logits.reshape(-1).float()).cpu().numpy()
+        mesh = extract_mesh(final.coords[:, 1:].cpu().numpy(), tsdf, grid.origin, settings.voxel_size)
+    report(progress, "mesh", 1, 1)
+    stats["mesh"] = {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces))}
+    if len(mesh.faces) == 0:
+        return ReconResult(empty_mesh(), plan.tiles, stats,
+                           f"the fine TSDF ({level_label(settings.voxel_size)}) never changes sign, so there is no "
+                           "surface: the weights may be untrained/random, or the poses are not metric and gravity-aligned")
+    with timer.stage("colour"):
+        mesh.colors = colour_mesh(mesh, plan, settings, progress, cancel)
+    return ReconResult(mesh, plan.tiles, stats, None)
+
+
+def _run_levels(model, plan: ReconPlan, settings: ReconSettings, cache: FeatureCache, device: torch.device,
+                timer: StageTimer, stats: dict[str, Any], progress, cancel):
+    """Fuse tile by tile, then one 3D CNN over the scene, per level. -> (fine LevelOutput, None) or
+    (None, message) when pruning leaves nothing."""
+    grid = plan.grid
+    active = plan.active_tiles
+    tile_index = {id(t): i for i, t in enumerate(plan.tiles)}
+    previous = None
+    coords = torch.as_tensor(np.concatenate([
+        np.concatenate([np.zeros((len(idx), 1), np.int64), idx], axis=1)
+        for idx in (grid.level_indices(t, LEVEL_SCALES[0]) for t in active)
+    ]))
+    for level, scale in enumerate(LEVEL_SCALES):
+        voxel = settings.voxel_size * scale
+        label = level_label(voxel)
+        fuse_stage, cnn_stage = f"fusion {label}", f"3D CNN {label}"
+        # Re-split by tile: children stay in their parent's tile because tiles align with the coarse grid.
+        owner = grid.tile_ids(coords[:, 1:].cpu().numpy(), scale)
+        order = np.argsort(owner, kind="stable")
+        bounds = np.searchsorted(owner[order], np.arange(len(plan.tiles) + 1))
+        points_all = torch.as_tensor(grid.origin, dtype=torch.float32) + coords[:, 1:].cpu().float() * voxel
+        fused = None
+        with timer.stage(fuse_stage):
+            for done, tile in enumerate(active):
+                check(cancel)
+                report(progress, fuse_stage, done, len(active))
+                t = tile_index[id(tile)]
+                rows = torch.as_tensor(order[bounds[t]:bounds[t + 1]])
+                tile.voxels[label] = int(len(rows))
+                if len(rows) == 0:
+                    tile.state = TileState.EMPTY
+                    continue
+                tile.state = TileState.RUNNING
+                features = fuse_tile(model, level, points_all[rows], cache, tile.views, device, settings.fusion_chunk, cancel)
+                if fused is None:
+                    fused = torch.zeros((len(coords), features.shape[1]), dtype=torch.float32)
+                fused[rows] = features
+                tile.state = TileState.PENDING if level < len(LEVEL_SCALES) - 1 else TileState.DONE
+            report(progress, fuse_stage, len(active), len(active))
+        check(cancel)
+        report(progress, cnn_stage, 0, 1)
+        with timer.stage(cnn_stage), torch.inference_mode():
+            out = model.level_step(level, coords.to(device), fused.to(device), previous)
+        report(progress, cnn_stage, 1, 1)
+        logits = out.logits.reshape(-1)
+        level_stats = {"label": label, "voxel_size": voxel, "voxels": int(len(coords)),
+                       "occupied": int((logits > 0).sum())}
+        stats["levels"].append(level_stats)
+        if level == len(LEVEL_SCALES) - 1:
+            return out, None
+        with timer.stage(cnn_stage), torch.inference_mode():
+            previous = model.prune_and_upsample(out)
+        if len(previous.coords) == 0:
+            return None, empty_scene_message(label)
+        coords = previous.coords
+    raise AssertionError("unreachable")
+
+
+def colour_mesh(mesh, plan: ReconPlan, settings: ReconSettings, progress, cancel) -> np.ndarray:
+    """Vertex colours (V, 3) float32 from up to `settings.colour_views` evenly spaced keyframes."""
+    if not settings.colour or settings.colour_views < 1:
+        return np.full((len(mesh.vertices), 3), 0.5, np.float32)
+    count = min(settings.colour_views, len(plan.keyframes))
+    picks = np.unique(np.round(np.linspace(0, len(plan.keyframes) - 1, count)).astype(np.int64))
+    views = []
+    for done, k in enumerate(picks):
+        check(cancel)
+        report(progress, "colour", done, len(picks) + 1)
+        frame = plan.keyframes[k]
+        size = resized_size(frame.width, frame.height, min(COLOUR_LONG_SIDE, settings.image_long_side))
+        K = scale_intrinsics(plan.Ks[k], (frame.width, frame.height), size)
+        views.append(ColourView(load_resized(frame, size), K, plan.poses[k]))
+    colours = colour_vertices(mesh, views, tolerance=2 * settings.voxel_size)
+    report(progress, "colour", len(picks) + 1, len(picks) + 1)
+    return colours
