@@ -58,7 +58,7 @@ def test_poll_does_not_block_and_one_job_at_a_time(jobs) -> None:
     started = time.monotonic()
     assert job.poll() is False
     assert time.monotonic() - started < 0.5
-    with pytest.raises(RuntimeError, match="first"):
+    with pytest.raises(jobs.JobBusy, match="first"):
         jobs.Job("second", lambda progress, cancel: None).start()
     release.set()
     job.join(5)

@@ -9,6 +9,10 @@ The conversion (checked in blender-notes.md section 6 to 0.0001 px against OpenC
   (vertical fit); shift_x = (W/2 - cx) * ax / m, shift_y = (cy - H/2) * ay / m with
   m = max(W * ax, H * ay).
 
+Pixel convention: the engine's K puts pixel (0, 0) over [0, 1)^2 (COLMAP's convention), which is
+also Blender's: the camera frame spans [0, W] x [0, H] with no half-pixel offset, so the formulas need
+no +-0.5 correction. (K with integer pixel centres, OpenCV's habit, is converted by the loaders.)
+
 Work is split in two so a bad frame cannot leave half-built cameras: `plan_capture_cameras` validates
 and computes everything from the Capture alone (no bpy), then `apply_camera_plan` writes Blender data.
 

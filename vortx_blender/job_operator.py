@@ -57,9 +57,7 @@ class JobOperatorMixin:
         try:
             function = self.make_job_function(context)
             return Job(self.job_title, function).start()
-        except VortxError as error:
-            self.report({"ERROR"}, str(error))
-        except RuntimeError as error:  # another job is running
+        except (VortxError, jobs.JobBusy) as error:
             self.report({"ERROR"}, str(error))
         return None
 

@@ -46,6 +46,10 @@ class _Outcome:
         self.error = error
 
 
+class JobBusy(RuntimeError):
+    """Another VoRTX job is still running (one at a time, see `_active`)."""
+
+
 # The job currently running, if any. Blender runs one VoRTX job at a time: two SfM or reconstruction
 # runs would fight over the two CPU cores / the GPU and over the same scene collection.
 _active: Optional["Job"] = None
@@ -81,7 +85,7 @@ class Job(Generic[T]):
             # A job whose thread has ended but whose owner never collected it (its modal operator was
             # killed by loading another file) no longer blocks new work.
             if _active is not None and _active.running:
-                raise RuntimeError(f"'{_active.title}' is still running; wait for it or press Esc to cancel it")
+                raise JobBusy(f"'{_active.title}' is still running; wait for it or press Esc to cancel it")
             _active = self
         self._thread = threading.Thread(target=self._run, name=f"vortx: {self.title}", daemon=True)
         self._thread.start()
@@ -178,4 +182,4 @@ def cancel_active(timeout: float = 5.0) -> None:
     job.poll()
 
 
-__all__ = ["Cancelled", "Job", "JobFunction", "Progress", "active_job", "cancel_active", "is_busy"]
+__all__ = ["Cancelled", "Job", "JobBusy", "JobFunction", "Progress", "active_job", "cancel_active", "is_busy"]

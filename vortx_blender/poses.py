@@ -43,7 +43,11 @@ class PosedCapture:
 
     def pose_status(self) -> str:
         posed, total = len(self.capture.posed_frames), len(self.capture.frames)
-        scale = {"camera height": "scaled by camera height", "known distance": "scaled by a known distance"}
+        scale = {
+            "camera height": "scaled by camera height",
+            "known distance": "scaled by a known distance",
+            "metric capture": "metric",
+        }
         return f"{posed} of {total} posed by SfM, " + scale.get(self.scale_source, "scale unknown")
 
 
