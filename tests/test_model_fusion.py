@@ -158,12 +158,17 @@ def test_an_invalid_view_has_no_influence(net, use_proj_occ):
 def test_a_voxel_no_view_sees_fuses_to_the_layer_norm_of_zero(net):
     poses, K, points = scene(3)
     far = torch.tensor([[0.32, 0.32, 20.0]])  # high above the cameras, outside every image
+    feats = fine_features(net, 3)
     net.set_use_proj_occ(True)
     with torch.no_grad():
-        out = net.fuse(2, torch.cat([points, far]), fine_features(net, 3), K, poses, (H, W))
+        out = net.fuse(2, torch.cat([points, far]), feats, K, poses, (H, W))
+        seen_only = net.fuse(2, points, feats, K, poses, (H, W))
     assert not out.valid[-1].any()
     # The pooled feature is exactly 0, so LayerNorm returns its bias.
     torch.testing.assert_close(out.features[-1], net.layer_norms["fine"].bias.detach())
+    # The unseen point does not disturb the others.
+    torch.testing.assert_close(out.features[:-1], seen_only.features)
+    torch.testing.assert_close(out.proj_occ_logits[:-1], seen_only.proj_occ_logits)
 
 
 def test_fuse_chunking_does_not_change_the_result(net):

@@ -146,8 +146,19 @@ class VortxNet(nn.Module):
     def _fuse_chunk(self, name: str, points: torch.Tensor, feats: torch.Tensor, K: torch.Tensor,
                     cam_to_world: torch.Tensor, stride: int):
         projection = project_points(points, K, cam_to_world, stride, tuple(feats.shape[-2:]))
-        sampled = sample_features(feats, projection.grid)  # (m, V, C)
-        pooled, logits = self.mv_fusion[name](sampled, projection.depth, projection.valid, self.use_proj_occ)
+        # Points no view sees pool to exactly 0 under both pooling rules, so the transformer only
+        # runs on the seen ones; their per-view logits (never valid, never supervised) stay 0.
+        seen = torch.nonzero(projection.valid.any(dim=1)).view(-1)
+        all_seen = len(seen) == len(points)
+        grid, depth, valid = projection.grid, projection.depth, projection.valid
+        if not all_seen:
+            grid, depth, valid = grid[seen], depth[seen], valid[seen]
+        sampled = sample_features(feats, grid)  # (m, V, C)
+        pooled, logits = self.mv_fusion[name](sampled, depth, valid, self.use_proj_occ)
+        if not all_seen:
+            pooled = pooled.new_zeros(len(points), pooled.shape[1]).index_copy(0, seen, pooled)
+            if logits is not None:
+                logits = logits.new_zeros(len(points), logits.shape[1]).index_copy(0, seen, logits)
         return pooled, logits, projection
 
     def level_step(
