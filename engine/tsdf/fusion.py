@@ -22,7 +22,7 @@ import torch
 
 from ..jobs import CancelToken, ProgressCallback, check, report
 from .bounds import frustum_bounds, frustum_corners, volume_from_bounds
-from .grid import voxel_positions
+from .grid import axis_positions
 from .volume import TsdfVolume
 
 Device = Union[str, torch.device, None]
@@ -107,14 +107,14 @@ def _integrate(
 ) -> None:
     """Update the running mean with one frame, touching only the voxels in its frustum's bounding box."""
     device = tsdf.device
-    depth = torch.as_tensor(np.asarray(depth_np, np.float32), device=device)
-    depth = torch.where(torch.isfinite(depth), depth, torch.zeros_like(depth))
+    depth_np = np.nan_to_num(np.asarray(depth_np, np.float32), nan=0.0, posinf=0.0, neginf=0.0)
     if depth_cap is not None:
-        depth = torch.where(depth > depth_cap, torch.zeros_like(depth), depth)
-    height, width = depth.shape
-    max_depth = float(depth.max())
+        depth_np = np.where(depth_np > depth_cap, 0.0, depth_np).astype(np.float32)
+    height, width = depth_np.shape
+    max_depth = float(depth_np.max())
     if max_depth <= 0:
         return
+    depth = torch.as_tensor(depth_np, device=device)
 
     # Only voxels with z <= max_depth + trunc and inside the image can change; one voxel of slack
     # around the box keeps float error at the border from dropping any.
@@ -125,19 +125,25 @@ def _integrate(
     lo, hi = np.clip(lo, 0, shape), np.clip(hi, 0, shape)
     if np.any(hi <= lo):
         return
-    block = voxel_positions(origin, hi - lo, voxel_size, start=lo, device=device)
 
-    R = torch.as_tensor(pose[:3, :3], dtype=torch.float32, device=device)
-    t = torch.as_tensor(pose[:3, 3], dtype=torch.float32, device=device)
-    cam = (block - t) @ R  # row-vector form of R^T (p - t): world -> camera
-    z = cam[..., 2]
-    z_safe = torch.where(z > 0, z, torch.ones_like(z))
-    u = torch.floor(cam[..., 0] * (K[0, 0] / z_safe) + K[0, 2])
-    v = torch.floor(cam[..., 1] * (K[1, 1] / z_safe) + K[1, 2])
-    inside = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    ui = torch.where(inside, u, torch.zeros_like(u)).long()
-    vi = torch.where(inside, v, torch.zeros_like(v)).long()
-    d = depth[vi, ui]
+    # P = K [R^T | -R^T t] maps a world point to (z*u, z*v, z). On a grid it is separable:
+    # P @ (x, y, z, 1) = P[:, 0] x_i + P[:, 1] y_j + (P[:, 2] z_k + P[:, 3]), so three small outer
+    # sums replace a per-voxel matrix product (this loop is the whole cost of ground-truth generation).
+    P = torch.as_tensor(K @ np.linalg.inv(pose)[:3], dtype=torch.float64, device=device)
+    xs, ys, zs = (axis_positions(origin, lo[a], hi[a] - lo[a], voxel_size, a, device=device) for a in range(3))
+
+    def project(row: int) -> torch.Tensor:
+        return (P[row, 0] * xs[:, None, None] + P[row, 1] * ys[None, :, None]
+                + (P[row, 2] * zs + P[row, 3])[None, None, :]).float()
+
+    z = project(2)
+    in_front = z > 0
+    z_safe = torch.where(in_front, z, torch.ones_like(z))
+    u = torch.floor(project(0) / z_safe)
+    v = torch.floor(project(1) / z_safe)
+    inside = in_front & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    flat = (v.clamp_(0, height - 1) * width + u.clamp_(0, width - 1)).long()
+    d = depth.reshape(-1)[flat]
     diff = d - z
     update = inside & (d > 0) & (diff >= -trunc)
     dist = torch.clamp(diff / trunc, max=1.0)

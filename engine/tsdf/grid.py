@@ -16,6 +16,15 @@ import torch
 ArrayLike = Union[np.ndarray, Sequence[float]]
 
 
+def axis_positions(
+    origin: ArrayLike, start: int, count: int, voxel_size: float, axis: int,
+    device: Union[str, torch.device, None] = None, dtype: torch.dtype = torch.float64,
+) -> torch.Tensor:
+    """World coordinates (count,) along one axis of voxel indices start .. start + count - 1."""
+    o = float(np.asarray(origin, dtype=np.float64)[axis])
+    return (torch.arange(int(start), int(start) + int(count), dtype=torch.float64) * voxel_size + o).to(device, dtype)
+
+
 def voxel_positions(
     origin: ArrayLike,
     dims: Sequence[int],
@@ -24,15 +33,8 @@ def voxel_positions(
     device: Union[str, torch.device, None] = None,
     dtype: torch.dtype = torch.float32,
 ) -> torch.Tensor:
-    """World positions of a block of voxels: (X, Y, Z, 3) for indices start + [0, dims).
-
-    Built from three aranges and broadcast, so a sub-block costs only its own size.
-    """
-    o = torch.as_tensor(np.asarray(origin, dtype=np.float64), dtype=torch.float64)
-    axes = [
-        (torch.arange(int(start[a]), int(start[a]) + int(dims[a]), dtype=torch.float64) * voxel_size + o[a]).to(dtype)
-        for a in range(3)
-    ]
+    """World positions of a block of voxels: (X, Y, Z, 3) for indices start + [0, dims)."""
+    axes = [axis_positions(origin, start[a], dims[a], voxel_size, a, dtype=dtype) for a in range(3)]
     gx, gy, gz = torch.meshgrid(*axes, indexing="ij")
     return torch.stack([gx, gy, gz], dim=-1).to(device)
 
