@@ -17,6 +17,10 @@ from safetensors.torch import load_file, save_file
 from ..errors import WeightsError
 from .config import VortxConfig
 
+# The weights the extension ships with (trained by engine.train); absent until a training run
+# produces them. The path is relative to the extension root, so it holds from the CLI and Blender.
+DEFAULT_WEIGHTS = Path(__file__).resolve().parents[2] / "weights" / "vortx-default.safetensors"
+
 CONFIG_KEY = "vortx_config"
 FORMAT_KEY = "format"
 FORMAT = "vortx-blender-weights/1"
