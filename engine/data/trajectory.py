@@ -113,10 +113,12 @@ def _look_angles(spec: "RoomSpec", positions: np.ndarray, rng: np.random.Generat
         elif choice < 0.6 and others:
             target = _nearest_in_view(pos, outward, others, rng, top=False)
         if target is None:
-            # A wall (or, rarely, across the room): mostly outward, waist to head height.
-            yaw = outward + rng.uniform(-0.8, 0.8) if rng.random() < 0.85 else outward + np.pi + rng.uniform(-0.5, 0.5)
-            key_yaw.append(yaw)
-            key_pitch.append(rng.uniform(np.radians(-30), np.radians(8)))
+            # Across open space: of a few candidate headings (mostly diagonal along the room), take the
+            # one whose line of sight runs closest to ~3 m -- not a wall filling the frame at arm's length.
+            candidates = outward + np.concatenate([rng.uniform(-1.4, 1.4, 5), np.pi + rng.uniform(-0.7, 0.7, 2)])
+            reach = np.array([_free_distance(spec, pos[:2], y) for y in candidates])
+            key_yaw.append(float(candidates[np.argmin(np.abs(reach - 3.0))]))
+            key_pitch.append(rng.uniform(np.radians(-25), np.radians(5)))
             continue
         delta = target - pos
         key_yaw.append(np.arctan2(delta[1], delta[0]))
@@ -136,13 +138,36 @@ def _nearest_in_view(pos: np.ndarray, outward: float, pieces: list, rng: np.rand
         delta = np.array(p.center) - pos[:2]
         dist = np.linalg.norm(delta)
         angle = np.angle(np.exp(1j * (np.arctan2(delta[1], delta[0]) - outward)))
-        if 0.3 < dist < 3.5 and abs(angle) < np.radians(110):
+        if 0.8 < dist < 3.5 and abs(angle) < np.radians(110):
             candidates.append(p)
     if not candidates:
         return None
     p = candidates[int(rng.integers(0, len(candidates)))]
     z = p.height if top else rng.uniform(0.3, 1.0) * p.height
     return np.array([p.center[0], p.center[1], z])
+
+
+def _free_distance(spec: "RoomSpec", xy: np.ndarray, yaw: float) -> float:
+    """How far a horizontal line of sight from xy along yaw runs before it meets a wall or a piece of
+    furniture taller than 1 m (lower ones are looked over)."""
+    d = np.array([np.cos(yaw), np.sin(yaw)])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        walls = np.where(d > 0, (np.array([spec.length, spec.width]) - xy) / d, np.where(d < 0, -xy / d, np.inf))
+    best = float(walls.min())
+    for p in spec.furniture:
+        if p.height < 1.0:
+            continue
+        c, s = np.cos(p.yaw), np.sin(p.yaw)
+        rot = np.array([[c, s], [-s, c]])  # world -> piece frame
+        o, v = rot @ (xy - np.asarray(p.center)), rot @ d
+        half = np.asarray(p.footprint) / 2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t1, t2 = (-half - o) / v, (half - o) / v
+        t_near = np.nanmax(np.minimum(t1, t2))
+        t_far = np.nanmin(np.maximum(t1, t2))
+        if t_near <= t_far and t_far > 0:
+            best = min(best, max(float(t_near), 0.0))
+    return best
 
 
 def _rate_limit(angles: np.ndarray, max_step: float) -> np.ndarray:
