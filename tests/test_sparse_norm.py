@@ -1,0 +1,60 @@
+"""SparseBatchNorm / SparseReLU: statistics over active voxels only, checkpoint-compatible names."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from engine.sparse import SparseBatchNorm, SparseReLU, SparseVoxels
+
+DT = torch.float64
+TOL = dict(rtol=1e-6, atol=1e-6)
+
+
+def sparse_input(n: int = 50, channels: int = 4, seed: int = 0) -> SparseVoxels:
+    gen = torch.Generator().manual_seed(seed)
+    coords = torch.unique(torch.randint(0, 8, (n, 4), generator=gen), dim=0)
+    coords[:, 0] %= 2
+    coords = torch.unique(coords, dim=0)
+    feats = torch.randn(len(coords), channels, generator=gen, dtype=DT) * 3 + 2
+    return SparseVoxels(coords, feats)
+
+
+def test_batchnorm_uses_statistics_of_active_voxels_only():
+    x = sparse_input()
+    bn = SparseBatchNorm(4).double()
+    with torch.no_grad():
+        bn.weight.copy_(torch.tensor([1.0, 2.0, 0.5, -1.0]))
+        bn.bias.copy_(torch.tensor([0.0, 1.0, -1.0, 0.5]))
+    y = bn(x)
+    assert y.coords is x.coords and y.cache is x.cache
+    mean = x.feats.mean(0)
+    var = ((x.feats - mean) ** 2).mean(0)  # biased variance normalises in training mode
+    expected = (x.feats - mean) / torch.sqrt(var + bn.eps) * bn.weight + bn.bias
+    torch.testing.assert_close(y.feats, expected, **TOL)
+    n = x.num_voxels
+    torch.testing.assert_close(bn.running_mean, 0.1 * mean, **TOL)
+    torch.testing.assert_close(bn.running_var, 0.9 + 0.1 * var * n / (n - 1), **TOL)
+    assert int(bn.num_batches_tracked) == 1
+
+    # A dense BatchNorm3d over the whole grid would count the inactive zeros and give other values.
+    dense_mean = x.feats.sum(0) / (2 * 8 * 8 * 8)
+    assert not torch.allclose(dense_mean, mean)
+
+    bn.eval()
+    z = bn(x)
+    expected_eval = (x.feats - bn.running_mean) / torch.sqrt(bn.running_var + bn.eps) * bn.weight + bn.bias
+    torch.testing.assert_close(z.feats, expected_eval, **TOL)
+
+
+def test_batchnorm_state_dict_names_match_batchnorm1d():
+    assert list(SparseBatchNorm(7).state_dict()) == list(nn.BatchNorm1d(7).state_dict())
+    reference = nn.BatchNorm1d(7)
+    SparseBatchNorm(7).load_state_dict(reference.state_dict(), strict=True)
+
+
+def test_relu_keeps_coordinates():
+    x = sparse_input(seed=1)
+    y = SparseReLU()(x)
+    assert y.coords is x.coords
+    torch.testing.assert_close(y.feats, x.feats.clamp(min=0))
