@@ -24,7 +24,7 @@ from torch import nn
 from ..sparse import SparseConv3d, SparseVoxels
 from .backbone_efficientnet import EfficientNetLite0Pyramid
 from .backbone_mnasnet import MnasNetPyramid
-from .backprojection import project_points, sample_features
+from .backprojection import Projection, project_points, sample_features
 from .coarse_to_fine import Upsampler, subsample_per_sample
 from .config import LEVEL_IMAGE_STRIDES, LEVEL_NAMES, VortxConfig
 from .fpn import FeaturePyramid
@@ -127,24 +127,31 @@ class VortxNet(nn.Module):
             raise ValueError(f"level {level} feature map {(h, w)} does not belong to images of size {image_hw}")
         name = LEVEL_NAMES[level]
         points = points_world.to(torch.float32)
-        chunks = [self._fuse_chunk(name, points[i : i + self.fusion_chunk], feats, K, cam_to_world, stride)
-                  for i in range(0, len(points), self.fusion_chunk)]
-        if not chunks:  # no points: keep shapes consistent
-            chunks = [self._fuse_chunk(name, points, feats, K, cam_to_world, stride)]
-        features = self.layer_norms[name](torch.cat([c[0] for c in chunks]))
+        pooled, logits, projections = [], [], []
+        # max(.., 1): an empty point set still makes one (empty) chunk, so shapes stay consistent.
+        for start in range(0, max(len(points), 1), self.fusion_chunk):
+            chunk_pooled, chunk_logits, projection = self._fuse_chunk(
+                name, points[start : start + self.fusion_chunk], feats, K, cam_to_world, stride
+            )
+            pooled.append(chunk_pooled)
+            if with_views:  # otherwise let each chunk's (m, V) tensors go at once
+                logits.append(chunk_logits)
+                projections.append(projection)
+        features = self.layer_norms[name](torch.cat(pooled))
         if not with_views:
             return FusionOutput(features)
-        logits = None if chunks[0][1] is None else torch.cat([c[1] for c in chunks])
         return FusionOutput(
             features=features,
-            proj_occ_logits=logits,
-            valid=torch.cat([c[2].valid for c in chunks]),
-            depth=torch.cat([c[2].depth for c in chunks]),
-            pixels=torch.cat([c[2].pixels for c in chunks]),
+            proj_occ_logits=None if logits[0] is None else torch.cat(logits),
+            valid=torch.cat([p.valid for p in projections]),
+            depth=torch.cat([p.depth for p in projections]),
+            pixels=torch.cat([p.pixels for p in projections]),
         )
 
-    def _fuse_chunk(self, name: str, points: torch.Tensor, feats: torch.Tensor, K: torch.Tensor,
-                    cam_to_world: torch.Tensor, stride: int):
+    def _fuse_chunk(
+        self, name: str, points: torch.Tensor, feats: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor, stride: int
+    ) -> tuple[torch.Tensor, torch.Tensor | None, Projection]:
+        """points (m, 3) -> pooled (m, C) before LayerNorm, proj-occ logits (m, V) | None, the projection."""
         projection = project_points(points, K, cam_to_world, stride, tuple(feats.shape[-2:]))
         # Points no view sees pool to exactly 0 under both pooling rules, so the transformer only
         # runs on the seen ones; their per-view logits (never valid, never supervised) stay 0.
@@ -205,7 +212,7 @@ class VortxNet(nn.Module):
         are kept after upsampling at the medium and fine levels.
         """
         b, v = batch.images.shape[:2]
-        image_hw = tuple(batch.images.shape[-2:])
+        image_hw = (batch.images.shape[-2], batch.images.shape[-1])
         # One backbone pass over all B*V images (BatchNorm statistics over the whole batch, as the
         # authors), then split per sample: each sample only sees its own views.
         maps = self.encode_views(batch.images.flatten(0, 1), batch.K.flatten(0, 1), batch.cam_to_world.flatten(0, 1))
@@ -214,8 +221,9 @@ class VortxNet(nn.Module):
         predictions: dict[str, LevelPrediction] = {}
         coords = dense_grid_coords(b, [c // 4 for c in batch.crop_shape], batch.images.device)
         previous: LevelOutput | None = None
+        out: LevelOutput | None = None
         for level, name in enumerate(LEVEL_NAMES):
-            if level > 0:
+            if out is not None:
                 previous = self.prune_and_upsample(out)
                 if len(previous) == 0:
                     break
@@ -230,8 +238,19 @@ class VortxNet(nn.Module):
                                                 voxel_size=voxel_size, **views)
         return predictions
 
-    def _fuse_batch(self, level, coords, points, feats, batch: VortxBatch, image_hw):
-        """fuse() per sample, scattered back into the batch's row order."""
+    def _fuse_batch(
+        self,
+        level: int,
+        coords: torch.Tensor,
+        points: torch.Tensor,
+        feats: list[list[torch.Tensor]],
+        batch: VortxBatch,
+        image_hw: tuple[int, int],
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor | None]]:
+        """fuse() per sample (each with its own views), scattered back into the batch's row order.
+
+        coords (N, 4), points (N, 3), feats[sample][level] (V, C, h, w) -> fused (N, C) and the
+        per-view fields of LevelPrediction ((N, V) / (N, V, 2))."""
         n, v = len(coords), batch.images.shape[1]
         fused = None
         views: dict[str, torch.Tensor | None] = {
