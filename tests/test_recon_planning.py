@@ -63,6 +63,13 @@ def test_tiles_partition_the_grid_and_cover_the_bounds():
             assert np.all(grid.tile_ids(grid.level_indices(tile, scale), scale) == t)
         assert tile.state is TileState.PENDING
     assert np.all(owner >= 0)
+    # Cropping to the bounds keeps exactly the coarse voxels whose cells overlap them.
+    lo = np.floor((bounds.minimum - grid.origin) / coarse + 1e-9)
+    hi = np.ceil((bounds.maximum - grid.origin) / coarse - 1e-9)
+    inside = [grid.level_indices(t, 4, within=bounds) for t in tiles]
+    assert sum(len(i) for i in inside) == int(np.prod(hi - lo))
+    stacked = np.concatenate(inside)
+    assert np.all(stacked >= lo) and np.all(stacked < hi) and len(np.unique(stacked, axis=0)) == len(stacked)
     corners, edges, states = tile_grid(tiles)
     assert corners.shape == (len(tiles), 8, 3) and edges.shape == (12, 2) and np.array_equal(edges, BOX_EDGES)
     np.testing.assert_allclose(corners.min(axis=1), [t.minimum for t in tiles])

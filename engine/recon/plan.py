@@ -95,7 +95,7 @@ def plan_reconstruction(
     for t, tile in enumerate(tiles):
         check(cancel)
         report(progress, "view selection", t, len(tiles))
-        tile.views = select_views_for_tile(tile, grid, Ks, poses, sizes, settings.views, settings.seed)
+        tile.views = select_views_for_tile(tile, grid, Ks, poses, sizes, settings.views, settings.seed, within=bounds)
         if len(tile.views) == 0:
             tile.state = TileState.EMPTY
     report(progress, "view selection", len(tiles), len(tiles))

@@ -73,11 +73,16 @@ class VoxelGrid:
         ny, nz = int(self.tiles_per_axis[1]), int(self.tiles_per_axis[2])
         return (tile[:, 0] * ny + tile[:, 1]) * nz + tile[:, 2]
 
-    def level_indices(self, tile: Tile, scale: int) -> np.ndarray:
-        """Every voxel index (M, 3) of `tile` at a level `scale` times coarser, x slowest."""
+    def level_indices(self, tile: Tile, scale: int, within: SceneBounds | None = None) -> np.ndarray:
+        """Every voxel index (M, 3) of `tile` at a level `scale` times coarser, x slowest; with
+        `within`, only voxels whose cell [i, i + 1) * size overlaps those bounds."""
         lo = tile.start // scale
         hi = (tile.start + tile.shape) // scale
-        axes = [np.arange(a, b, dtype=np.int64) for a, b in zip(lo, hi)]
+        if within is not None:
+            size = self.voxel_size * scale
+            lo = np.maximum(lo, np.floor((within.minimum - self.origin) / size + 1e-9).astype(np.int64))
+            hi = np.minimum(hi, np.ceil((within.maximum - self.origin) / size - 1e-9).astype(np.int64))
+        axes = [np.arange(a, max(a, b), dtype=np.int64) for a, b in zip(lo, hi)]
         return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
 
 

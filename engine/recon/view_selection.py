@@ -9,8 +9,11 @@ that see none of the tile only add masked-out tokens and cost). Sampling is seed
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 
+from .bounds import SceneBounds
 from .settings import COARSE_FACTOR
 from .tiles import Tile, VoxelGrid
 
@@ -39,9 +42,10 @@ def views_seeing_points(points: np.ndarray, Ks: np.ndarray, poses: np.ndarray, s
     return seen
 
 
-def tile_coarse_points(tile: Tile, grid: VoxelGrid) -> np.ndarray:
-    """World positions (M, 3) of the tile's coarse voxels (corner convention)."""
-    indices = grid.level_indices(tile, COARSE_FACTOR)
+def tile_coarse_points(tile: Tile, grid: VoxelGrid, within: Optional[SceneBounds] = None) -> np.ndarray:
+    """World positions (M, 3) of the tile's coarse voxels (corner convention), optionally only those
+    inside the scene bounds (the ones the driver fuses)."""
+    indices = grid.level_indices(tile, COARSE_FACTOR, within)
     return grid.origin + indices * (grid.voxel_size * COARSE_FACTOR)
 
 
@@ -54,9 +58,17 @@ def sample_views(candidates: np.ndarray, max_views: int, rng: np.random.Generato
 
 
 def select_views_for_tile(
-    tile: Tile, grid: VoxelGrid, Ks: np.ndarray, poses: np.ndarray, sizes: np.ndarray, max_views: int, seed: int
+    tile: Tile,
+    grid: VoxelGrid,
+    Ks: np.ndarray,
+    poses: np.ndarray,
+    sizes: np.ndarray,
+    max_views: int,
+    seed: int,
+    within: Optional[SceneBounds] = None,
 ) -> np.ndarray:
-    """Keyframe positions (<= max_views,) int64, sorted, that see the tile; empty when none does."""
-    seen = views_seeing_points(tile_coarse_points(tile, grid), Ks, poses, sizes)
+    """Keyframe positions (<= max_views,) int64, sorted, that see the tile (its part inside `within`
+    when given); empty when none does."""
+    seen = views_seeing_points(tile_coarse_points(tile, grid, within), Ks, poses, sizes)
     rng = np.random.default_rng([seed, *tile.index])
     return sample_views(np.flatnonzero(seen), max_views, rng)

@@ -1,0 +1,218 @@
+"""`python -m engine bench [--quick] [--out bench.json]`: how fast and how big the pipeline is here.
+
+Runs the full reconstruction (official network widths, seeded random weights, 4 cm voxels,
+320 x 240 images) on procedurally generated posed captures of box rooms, so no Blender and no data
+are needed; the numbers measure speed and memory, not quality. Reports end-to-end keyframes per
+second, wall and CPU seconds per stage, voxels per level and peak RSS; scaling with the views per
+tile (N = 20 / 40 / 60) and with the room size; the sparse 3D convolution against a dense Conv3d on
+the same volume (engine.sparse.bench); and the memory model of engine.recon.memory_estimate checked
+against the measured runs, then applied to a 10 x 10 x 3 m room at N = 60.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+MB = 2**20
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    room: tuple[float, float, float]  # metres; the scene bounds are clipped to the room
+    views: int  # N, keyframes per tile
+    frames: int  # generated frames (all become keyframes: the circle's steps exceed 0.1 m / 15 deg)
+
+
+FULL_CASES = (
+    Case("N=20, 2 m room", (2.0, 2.0, 2.5), 20, 64),
+    Case("N=40, 2 m room", (2.0, 2.0, 2.5), 40, 64),
+    Case("N=60, 2 m room", (2.0, 2.0, 2.5), 60, 64),
+    Case("N=20, 1.5 m room", (1.5, 1.5, 2.5), 20, 40),
+    Case("N=20, 3 m room", (3.0, 3.0, 2.5), 20, 40),
+)
+QUICK_CASES = (Case("N=20, 1.5 m room", (1.5, 1.5, 2.5), 20, 24),)
+FULL_SPARSE = ({"grid": (96, 96, 48), "channels": 32}, {"grid": (96, 96, 48), "channels": 16, "occupancy": 0.1})
+QUICK_SPARSE = ({"grid": (48, 48, 24), "channels": 16, "repeats": 1},)
+IMAGE_SIZE = (320, 240)
+PROJECTED_ROOM = (10.0, 10.0, 3.0)
+PROJECTED_KEYFRAMES = 500  # a careful walk around a 10 x 10 m room at 0.1 m / 15 deg spacing
+PROJECTED_IMAGE = (640, 480)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--quick", action="store_true", help="one small run and a small sparse-conv check (about a minute)")
+    parser.add_argument("--out", type=Path, default=None, help="also write the results as JSON here")
+    parser.add_argument("--device", default="cpu", help="cpu or cuda (default %(default)s)")
+
+
+def machine_info() -> dict[str, Any]:
+    import numpy
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo") as f:
+            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
+    except OSError:
+        pass
+    info: dict[str, Any] = {
+        "cpu": cpu,
+        "logical_cores": os.cpu_count(),
+        "torch_threads": torch.get_num_threads(),
+        "torch": torch.__version__,
+        "numpy": numpy.__version__,
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
+    }
+    if hasattr(os, "getloadavg"):
+        info["load_average_at_start"] = [round(v, 2) for v in os.getloadavg()]
+    return info
+
+
+def run_case(case: Case, device: str, workdir: Path) -> dict[str, Any]:
+    from .recon import ReconSettings, reconstruct
+    from .recon.memory_estimate import estimate_memory
+    from .recon.synthetic import make_synthetic_capture
+
+    capture_dir = workdir / f"room_{case.room[0]:g}x{case.room[1]:g}_{case.frames}"
+    if not capture_dir.exists():
+        make_synthetic_capture(capture_dir, room_size=case.room, frames=case.frames, image_size=IMAGE_SIZE)
+    from .capture import load_capture
+
+    capture = load_capture(capture_dir)
+    settings = ReconSettings(weights="random", views=case.views, device=device, image_long_side=max(IMAGE_SIZE),
+                             max_room_size=case.room)
+    result = reconstruct(capture, settings)
+    stats = result.stats
+    levels = stats["levels"]
+    memory = stats["memory"]
+    voxels = tuple(lv["voxels"] for lv in levels) + (0,) * (3 - len(levels))
+    estimate = estimate_memory(voxels, stats["keyframes"], tuple(stats["image_size"]), case.views,
+                               settings.fusion_chunk, settings.fp16_features, baseline=memory["start_rss_bytes"] or 0)
+    total = stats["timings_s"]["total"]
+    return {
+        "case": case.name,
+        "room_m": list(case.room),
+        "views": case.views,
+        "frames": case.frames,
+        "keyframes": stats["keyframes"],
+        "tiles": stats["tiles"]["count"],
+        "views_per_tile_max": max(stats["tiles"]["views_per_tile"]),
+        "voxels": [lv["voxels"] for lv in levels],
+        "occupied": [lv["occupied"] for lv in levels],
+        "mesh_faces": stats.get("mesh", {}).get("faces", 0),
+        "timings_s": stats["timings_s"],
+        "cpu_timings_s": stats["cpu_timings_s"],
+        "keyframes_per_s": stats["keyframes"] / total if total else None,
+        "peak_rss_bytes": memory["peak_rss_bytes"],
+        "start_rss_bytes": memory["start_rss_bytes"],
+        "cuda_max_allocated_bytes": memory["cuda_max_allocated_bytes"],
+        "estimated_peak_bytes": estimate.total,
+        "message": result.message,
+    }
+
+
+def stage_sum(timings: dict[str, float], prefix: str) -> float:
+    return sum(v for k, v in timings.items() if k.startswith(prefix))
+
+
+def projected_memory(runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The memory model applied to a 10 x 10 x 3 m room at N = 60, 640 x 480, 4 cm."""
+    from .recon.memory_estimate import (box_room_surface_area, coarse_voxels, estimate_memory,
+                                        keep_fraction_voxels, surface_band_voxels)
+
+    fractions = [[r["occupied"][i] / r["voxels"][i] for r in runs if len(r["voxels"]) > i and r["voxels"][i]] for i in (0, 1)]
+    keep = tuple(float(sum(f) / len(f)) if f else 0.5 for f in fractions)
+    coarse = coarse_voxels(PROJECTED_ROOM, 0.04)
+    models = {
+        f"random weights (keep {keep[0]:.2f} / {keep[1]:.2f}, as measured)": keep_fraction_voxels(coarse, keep),  # type: ignore[arg-type]
+        "trained weights (surface band, 400 m^2)": surface_band_voxels(coarse, box_room_surface_area(PROJECTED_ROOM), 0.04),
+    }
+    out = {"room_m": list(PROJECTED_ROOM), "views": 60, "keyframes": PROJECTED_KEYFRAMES, "image_size": list(PROJECTED_IMAGE)}
+    for name, voxels in models.items():
+        out[name] = estimate_memory(voxels, PROJECTED_KEYFRAMES, PROJECTED_IMAGE, 60).to_dict()
+    return out
+
+
+def markdown(report: dict[str, Any]) -> str:
+    m = report["machine"]
+    lines = [
+        f"Machine: {m['cpu']}, {m['logical_cores']} logical cores, torch {m['torch']} ({m['torch_threads']} threads)"
+        + (f", load average {m.get('load_average_at_start')} at start" if m.get("load_average_at_start") else ""),
+        "",
+        "| case | keyframes | voxels 16/8/4 cm | features s | fusion s | 3D CNN s | mesh + colour s | total s (CPU s) | keyframes/s | peak RSS MB (estimate) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in report["runs"]:
+        t, c = r["timings_s"], r["cpu_timings_s"]
+        lines.append(
+            f"| {r['case']} | {r['keyframes']} | {' / '.join(str(v) for v in r['voxels'])} | {t.get('features', 0):.1f} "
+            f"| {stage_sum(t, 'fusion'):.1f} | {stage_sum(t, '3D CNN'):.1f} | {t.get('mesh', 0) + t.get('colour', 0):.1f} "
+            f"| {t['total']:.1f} ({c['total']:.1f}) | {r['keyframes_per_s']:.2f} "
+            f"| {r['peak_rss_bytes'] / MB:.0f} ({r['estimated_peak_bytes'] / MB:.0f}) |"
+        )
+    lines += ["", "| sparse vs dense 3^3 conv | voxels | kernel map s | sparse fwd s | dense fwd s | speed-up fwd | speed-up fwd+bwd |",
+              "|---|---|---|---|---|---|---|"]
+    for s in report["sparse_vs_dense"]:
+        lines.append(
+            f"| {'x'.join(map(str, s['grid']))}, {s['channels']} ch, {s['pattern']} | {s['voxels']} | {s['kernel_map_s']:.3f} "
+            f"| {s['sparse_forward_s']:.3f} | {s.get('dense_forward_s', float('nan')):.3f} "
+            f"| {s.get('speedup_forward', float('nan')):.2f} | {s.get('speedup_forward_backward', float('nan')):.2f} |"
+        )
+    p = report["projected_memory"]
+    lines += ["", f"Projected peak memory, {p['room_m'][0]:g} x {p['room_m'][1]:g} x {p['room_m'][2]:g} m room, N = {p['views']}, "
+              f"{p['keyframes']} keyframes at {p['image_size'][0]}x{p['image_size'][1]}, 4 cm (CPU):"]
+    for name, est in p.items():
+        if isinstance(est, dict):
+            lines.append(f"- {name}: voxels {' / '.join(str(v) for v in est['voxels'])} -> {est['total_bytes'] / 2**30:.1f} GiB "
+                         f"(feature cache {est['feature_cache_bytes'] / 2**30:.2f}, fine level {est['fine_level_bytes'] / 2**30:.2f})")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    from .sparse.bench import bench_sparse_vs_dense
+
+    cases = QUICK_CASES if args.quick else FULL_CASES
+    report: dict[str, Any] = {"machine": machine_info(), "quick": bool(args.quick), "image_size": list(IMAGE_SIZE), "runs": []}
+    started = time.perf_counter()
+    workdir = Path(tempfile.mkdtemp(prefix="vortx-bench-"))
+    try:
+        for case in cases:
+            print(f"running {case.name} ...", file=sys.stderr, flush=True)
+            report["runs"].append(run_case(case, args.device, workdir))
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
+    report["sparse_vs_dense"] = []
+    for kwargs in QUICK_SPARSE if args.quick else FULL_SPARSE:
+        print(f"sparse vs dense {kwargs} ...", file=sys.stderr, flush=True)
+        report["sparse_vs_dense"].append(bench_sparse_vs_dense(device=args.device, **kwargs))
+    report["projected_memory"] = projected_memory(report["runs"])
+    report["bench_seconds"] = round(time.perf_counter() - started, 1)
+    if hasattr(os, "getloadavg"):
+        report["machine"]["load_average_at_end"] = [round(v, 2) for v in os.getloadavg()]
+    print(markdown(report))
+    if args.out is not None:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(report, indent=1, default=_jsonable) + "\n")
+        print(f"\nwrote {args.out}", file=sys.stderr)
+    return 0
+
+
+def _jsonable(value: Any) -> Optional[Any]:
+    if isinstance(value, tuple):
+        return list(value)
+    if hasattr(value, "item"):
+        return value.item()
+    return str(value)
