@@ -1,0 +1,118 @@
+"""Similarity transforms between camera trajectories: Umeyama fit, applying a Sim(3), pose errors.
+
+SfM recovers poses only up to a similarity (rotation, translation, scale), so every comparison
+with ground truth and every change of world frame (gravity, metric scale) goes through here.
+Poses are camera-to-world (4, 4) float64 in OpenCV camera axes, as everywhere in the engine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Similarity:
+    """x_new = scale * rotation @ x + translation."""
+
+    rotation: np.ndarray  # (3, 3) float64, det +1
+    translation: np.ndarray  # (3,) float64
+    scale: float = 1.0
+
+    @staticmethod
+    def identity() -> "Similarity":
+        return Similarity(np.eye(3), np.zeros(3), 1.0)
+
+    def matrix(self) -> np.ndarray:
+        """(4, 4) homogeneous matrix of the similarity."""
+        m = np.eye(4)
+        m[:3, :3] = self.scale * self.rotation
+        m[:3, 3] = self.translation
+        return m
+
+    def apply_points(self, points: np.ndarray) -> np.ndarray:
+        """points (N, 3) -> (N, 3)."""
+        return self.scale * np.asarray(points, dtype=np.float64) @ self.rotation.T + self.translation
+
+    def apply_pose(self, cam_to_world: np.ndarray) -> np.ndarray:
+        """Move a camera (4, 4) camera-to-world into the new world: [R_w R_c | s R_w t_c + t_w].
+
+        The camera's own axes only rotate; the scale acts on positions, never on the rotation
+        block, so the result stays a rigid camera-to-world matrix.
+        """
+        out = np.eye(4)
+        out[:3, :3] = self.rotation @ cam_to_world[:3, :3]
+        out[:3, 3] = self.scale * self.rotation @ cam_to_world[:3, 3] + self.translation
+        return out
+
+    def then(self, other: "Similarity") -> "Similarity":
+        """The similarity that applies `self` first and `other` second."""
+        return Similarity(
+            other.rotation @ self.rotation,
+            other.scale * other.rotation @ self.translation + other.translation,
+            other.scale * self.scale,
+        )
+
+
+def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool = True) -> Similarity:
+    """Least-squares similarity with target ~ s R source + t (Umeyama 1991).
+
+    source, target: (N, 3) corresponding points, N >= 3 and not all collinear for a unique R.
+    """
+    src = np.asarray(source, dtype=np.float64)
+    dst = np.asarray(target, dtype=np.float64)
+    if src.shape != dst.shape or src.ndim != 2 or src.shape[1] != 3 or len(src) < 3:
+        raise ValueError(f"umeyama needs two (N, 3) arrays with N >= 3, got {src.shape} and {dst.shape}")
+    mu_src, mu_dst = src.mean(0), dst.mean(0)
+    src_c, dst_c = src - mu_src, dst - mu_dst
+    covariance = dst_c.T @ src_c / len(src)
+    u, d, vt = np.linalg.svd(covariance)
+    # Reflection guard: force det(R) = +1 by flipping the weakest singular direction.
+    sign = np.ones(3)
+    if np.linalg.det(u) * np.linalg.det(vt) < 0:
+        sign[2] = -1.0
+    rotation = u @ np.diag(sign) @ vt
+    variance = (src_c**2).sum() / len(src)
+    scale = float((d * sign).sum() / variance) if with_scale and variance > 0 else 1.0
+    translation = mu_dst - scale * rotation @ mu_src
+    return Similarity(rotation, translation, scale)
+
+
+def rotation_angle_deg(rotation: np.ndarray) -> float:
+    """Angle of a (3, 3) rotation matrix in degrees.
+
+    atan2 of sine (from the skew part) and cosine (from the trace): arccos of the trace alone
+    loses precision near 0, exactly where pose errors live.
+    """
+    skew = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]])
+    sin = 0.5 * np.linalg.norm(skew)
+    cos = 0.5 * (np.trace(rotation) - 1.0)
+    return float(np.degrees(np.arctan2(sin, cos)))
+
+
+def pose_errors(estimated_c2w: Sequence[np.ndarray], true_c2w: Sequence[np.ndarray]) -> dict[str, float]:
+    """Compare two trajectories of the same cameras after a Sim(3) fit of the camera centres.
+
+    estimated_c2w, true_c2w: equally long sequences of (4, 4) camera-to-world, OpenCV axes, same order.
+    Returns rotation_deg_mean / rotation_deg_max (angle of R_true^T R_aligned per camera),
+    position_mean / position_max (centre distance in the units of the truth), the fitted `scale`
+    (truth units per estimated unit) and `count`.
+    """
+    if len(estimated_c2w) != len(true_c2w):
+        raise ValueError(f"{len(estimated_c2w)} estimated poses but {len(true_c2w)} true poses")
+    est = np.asarray(estimated_c2w, dtype=np.float64)
+    gt = np.asarray(true_c2w, dtype=np.float64)
+    sim = umeyama(est[:, :3, 3], gt[:, :3, 3])
+    aligned = np.stack([sim.apply_pose(p) for p in est])
+    rot_err = np.array([rotation_angle_deg(g[:3, :3].T @ a[:3, :3]) for g, a in zip(gt, aligned)])
+    pos_err = np.linalg.norm(aligned[:, :3, 3] - gt[:, :3, 3], axis=1)
+    return {
+        "rotation_deg_mean": float(rot_err.mean()),
+        "rotation_deg_max": float(rot_err.max()),
+        "position_mean": float(pos_err.mean()),
+        "position_max": float(pos_err.max()),
+        "scale": sim.scale,
+        "count": float(len(est)),
+    }

@@ -1,0 +1,77 @@
+"""`python -m engine poses CAPTURE --out DIR`: estimate camera poses and write the posed capture.
+
+The output folder is a ScanNet-layout capture (color/, pose/, intrinsic/) plus a COLMAP text model
+in colmap/ (with the sparse points), so both this engine and other tools can read the result.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ..errors import PoseError
+from ..jobs import TqdmProgress
+from .gravity import KnownDistance
+from .sfm import INTRINSICS, MATCHERS, SfmOptions, estimate_poses
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("capture", type=Path, help="capture folder (photos, COLMAP, transforms.json, ScanNet) or video")
+    parser.add_argument("--out", type=Path, required=True, help="output folder (ScanNet layout + colmap/)")
+    parser.add_argument("--matcher", choices=MATCHERS, default="auto",
+                        help="feature matching: exhaustive for small photo sets, sequential for video (default: auto)")
+    parser.add_argument("--max-side", type=int, default=1024,
+                        help="downscale photos to this larger side for SfM (default 1024; 0 = full size)")
+    parser.add_argument("--intrinsics", choices=INTRINSICS, default="auto",
+                        help="fixed: trust the capture's K; prior: refine it; estimate: ignore it (default: auto)")
+    parser.add_argument("--camera-height", type=float, default=1.5,
+                        help="camera height above the floor in metres, sets the scale (default 1.5)")
+    parser.add_argument("--known-distance", nargs=3, metavar=("FRAME_A", "FRAME_B", "METRES"),
+                        help="set the scale from the distance between the cameras of two photos (file names)")
+    parser.add_argument("--overwrite", action="store_true", help="replace a capture already in --out")
+    parser.add_argument("--work-dir", type=Path, default=None,
+                        help="keep COLMAP's database, models and log here (default: a temporary folder)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def _known_distance(values: list[str] | None) -> KnownDistance | None:
+    if values is None:
+        return None
+    frame_a, frame_b, metres = values
+    try:
+        distance = float(metres)
+    except ValueError as error:
+        raise PoseError(f"--known-distance: {metres!r} is not a number of metres") from error
+    return KnownDistance(frame_a, frame_b, distance)
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..capture import load_capture
+    from ..capture.export import write_colmap_text, write_scannet
+
+    options = SfmOptions(
+        matcher=args.matcher,
+        max_side=args.max_side,
+        intrinsics=args.intrinsics,
+        camera_height=args.camera_height,
+        known_distance=_known_distance(args.known_distance),
+        work_dir=args.work_dir,
+    )
+    progress = TqdmProgress(disable=args.quiet)
+    try:
+        capture = load_capture(args.capture, progress=progress)
+        for warning in capture.warnings:
+            print(f"warning: {warning}")
+        already = len(capture.posed_frames)
+        if already:
+            print(f"note: {capture.root} already has poses for {already} of {len(capture.frames)} frames; "
+                  "structure from motion replaces them")
+        result = estimate_poses(capture, options, progress=progress)
+        written = write_scannet(result.capture, args.out, overwrite=args.overwrite)
+        write_colmap_text(written, args.out / "colmap", result.points, result.point_colors)
+    finally:
+        progress.close()
+    print(result.report)
+    print(f"wrote {len(written.frames)} posed photos to {args.out} (ScanNet layout) and a COLMAP text model "
+          f"to {args.out / 'colmap'}")
+    return 0

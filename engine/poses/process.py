@@ -1,0 +1,179 @@
+"""Run the SfM worker process: forward its progress, honour cancel, turn its failures into PoseError.
+
+The worker (`sfm_worker.py`) writes one merged stdout/stderr stream: our `@vortx ...` protocol
+lines plus COLMAP's glog lines. COLMAP's own lines ("Processed file [3/50]", "Processing image
+[7/50]", "num_reg_frames=12") give finer progress than the worker could report itself, because
+each pycolmap call is one long blocking call.
+"""
+
+from __future__ import annotations
+
+import os
+import queue
+import re
+import signal
+import subprocess
+import sys
+import threading
+from collections import deque
+from pathlib import Path
+from typing import Optional, Sequence
+
+from ..errors import Cancelled, PoseError
+from ..jobs import CancelToken, ProgressCallback, report
+
+WORKER_SCRIPT = Path(__file__).with_name("sfm_worker.py")
+
+STAGE_LABELS = {
+    "prepare": "poses: downscale photos",
+    "extract": "poses: SIFT features",
+    "match": "poses: matching",
+    "map": "poses: mapping",
+}
+
+_EXTRACTED = re.compile(r"Processed file \[(\d+)/(\d+)\]")
+_MATCHED_IMAGE = re.compile(r"Processing image \[(\d+)/(\d+)\]")
+_MATCHED_BLOCK = re.compile(r"Processing block \[(\d+)/(\d+), (\d+)/(\d+)\]")
+_REGISTERED = re.compile(r"num_reg_frames=(\d+)")
+
+
+def worker_command(job_path: Path) -> list[str]:
+    """The command line that runs the worker with the interpreter running us (Blender's inside Blender)."""
+    return [sys.executable, "-u", str(WORKER_SCRIPT), str(job_path)]
+
+
+def worker_environment() -> dict[str, str]:
+    """Our environment plus our sys.path as PYTHONPATH.
+
+    Inside Blender the extension's wheels (pycolmap, cv2) sit in a folder Blender adds to sys.path
+    at start-up; a bare interpreter would not find them without this.
+    """
+    env = dict(os.environ)
+    paths = [p for p in sys.path if p and os.path.isdir(p)]
+    if env.get("PYTHONPATH"):
+        paths.append(env["PYTHONPATH"])
+    env["PYTHONPATH"] = os.pathsep.join(paths)
+    env["PYTHONUNBUFFERED"] = "1"
+    return env
+
+
+class _Progress:
+    """Translates stream lines into progress(stage, done, total) calls."""
+
+    def __init__(self, progress: Optional[ProgressCallback]) -> None:
+        self._progress = progress
+        self._totals: dict[str, int] = {}
+        self._stage: Optional[str] = None
+
+    def _emit(self, stage: str, done: int, total: int) -> None:
+        self._stage = stage
+        report(self._progress, STAGE_LABELS.get(stage, stage), min(done, total), total)
+
+    def protocol(self, words: list[str]) -> None:
+        if words[0] == "stage" and len(words) == 3:
+            self._totals[words[1]] = int(words[2])
+            self._emit(words[1], 0, int(words[2]))
+        elif words[0] == "progress" and len(words) == 4:
+            self._emit(words[1], int(words[2]), int(words[3]))
+
+    def colmap(self, line: str) -> None:
+        if (m := _EXTRACTED.search(line)) is not None:
+            self._emit("extract", int(m[1]), int(m[2]))
+        elif (m := _MATCHED_IMAGE.search(line)) is not None:
+            self._emit("match", int(m[1]) - 1, int(m[2]))
+        elif (m := _MATCHED_BLOCK.search(line)) is not None:
+            rows, cols = int(m[2]), int(m[4])
+            self._emit("match", (int(m[1]) - 1) * cols + int(m[3]) - 1, rows * cols)
+        elif (m := _REGISTERED.search(line)) is not None and self._stage == "map":
+            self._emit("map", int(m[1]), self._totals.get("map", int(m[1])))
+
+
+def _describe_exit(returncode: int) -> str:
+    if returncode < 0:
+        try:
+            name = signal.Signals(-returncode).name
+        except ValueError:
+            name = f"signal {-returncode}"
+        return f"was killed by {name}"
+    return f"exited with status {returncode}"
+
+
+def run_worker(
+    command: Sequence[str],
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+    env: Optional[dict[str, str]] = None,
+    log_path: Optional[Path] = None,
+) -> None:
+    """Run `command` to completion, reporting progress; raise Cancelled or PoseError.
+
+    On cancel the process is killed (COLMAP has no safe stop point we could wait for) and
+    `Cancelled` is raised. A non-zero exit raises PoseError with the worker's own error message
+    when it sent one, else the last lines of its log. `log_path`, when given, receives the whole log.
+    """
+    tail: deque[str] = deque(maxlen=25)
+    worker_error: Optional[str] = None
+    translator = _Progress(progress)
+    lines: "queue.Queue[Optional[str]]" = queue.Queue()
+    log_file = open(log_path, "w", encoding="utf-8") if log_path is not None else None
+    process = subprocess.Popen(
+        list(command),
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+        text=True,
+        encoding="utf-8",
+        errors="replace",
+        env=env if env is not None else worker_environment(),
+    )
+
+    def pump() -> None:
+        assert process.stdout is not None
+        for raw in process.stdout:
+            lines.put(raw.rstrip("\n"))
+        lines.put(None)
+
+    reader = threading.Thread(target=pump, name="sfm-worker-output", daemon=True)
+    reader.start()
+    try:
+        finished = False
+        while not finished:
+            if cancel is not None and cancel.cancelled:
+                raise Cancelled()
+            try:
+                line = lines.get(timeout=0.1)
+            except queue.Empty:
+                continue
+            if line is None:
+                finished = True
+                continue
+            if log_file is not None:
+                log_file.write(line + "\n")
+            if line.startswith("@vortx "):
+                words = line.split()[1:]
+                if words and words[0] == "error":
+                    worker_error = line.split(" ", 2)[2] if len(words) > 1 else "unknown error"
+                elif words:
+                    translator.protocol(words)
+            else:
+                tail.append(line)
+                translator.colmap(line)
+        returncode = process.wait()
+    except BaseException:
+        # Cancel, KeyboardInterrupt or a bug on our side: never leave COLMAP running behind us.
+        process.kill()
+        process.wait()
+        raise
+    finally:
+        reader.join(timeout=5)
+        if log_file is not None:
+            log_file.close()
+
+    if returncode != 0:
+        if worker_error is not None:
+            raise PoseError(f"structure from motion failed: {worker_error}")
+        last = "\n".join(tail) or "(no output)"
+        raise PoseError(
+            f"structure from motion crashed: the COLMAP process {_describe_exit(returncode)}. "
+            f"Last log lines:\n{last}"
+        )

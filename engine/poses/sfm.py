@@ -1,0 +1,338 @@
+"""Camera poses for a capture without them: pycolmap SfM in a subprocess, then gravity and scale.
+
+Choices (measured in platform-notes section 1 and on the fox photos):
+- SIFT on the CPU and one shared camera (`CameraMode.SINGLE`): a capture is one phone or one video.
+- Photos are downscaled (larger side `max_side`, default 1024) before SfM: at 800 px the fox set
+  registers fully with sub-degree rotation error, and features/matching get ~4x cheaper than at
+  full size. K is scaled back to the full-size photos afterwards.
+- Matching: exhaustive for small unordered photo sets (robust, O(n^2) pairs); sequential with
+  `sequential_overlap` neighbours for video frames and sets larger than `sequential_above`
+  (O(n) pairs). Never loop detection: it needs a vocabulary tree download and aborts offline.
+- Intrinsics: when every frame has the same calibrated K (COLMAP, transforms.json, ScanNet
+  captures), PINHOLE held fixed in bundle adjustment. Otherwise SIMPLE_RADIAL is estimated
+  (COLMAP's default: modelling the lens's mild barrel distortion keeps bundle adjustment from
+  bending the trajectory to absorb it), starting from the EXIF focal length when the photo folder
+  loader found one. The reconstruction needs a pinhole camera: it gets (f, f, cx, cy), and the
+  radial term is either negligible (it moves the image corners by less than 0.5 % of the image
+  size: dropped) or the photos are undistorted into the capture's cache (`undistort=True`).
+- The whole SfM runs in a child process (`sfm_worker.py`): a COLMAP CHECK failure aborts the
+  process it runs in, and that must not be Blender.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import tempfile
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+
+from ..capture.model import Capture, Frame
+from ..capture.naming import name_list
+from ..capture.undistort import undistort_images
+from ..errors import PoseError
+from ..jobs import CancelToken, ProgressCallback, check
+from .gravity import Alignment, KnownDistance, align_gravity_and_scale
+from .process import run_worker, worker_command
+from .quality import quality_warnings, radial_corner_shift, significant_distortion
+
+MATCHERS = ("auto", "sequential", "exhaustive")
+INTRINSICS = ("auto", "fixed", "prior", "estimate")
+# Formats whose K comes from a calibration or an earlier SfM; a photo folder's or video's K is an
+# EXIF guess (or absent) and only a starting point.
+CALIBRATED_FORMATS = ("colmap", "transforms", "scannet")
+# COLMAP models whose parameters start with a pinhole part we can hand to the reconstruction.
+CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "SIMPLE_PINHOLE", "PINHOLE")
+
+
+@dataclass
+class SfmOptions:
+    matcher: str = "auto"  # "auto" | "sequential" | "exhaustive"
+    max_side: int = 1024  # downscale photos so their larger side is at most this for SfM; 0 = full size
+    sequential_overlap: int = 10  # neighbours each frame is matched with by the sequential matcher
+    sequential_above: int = 60  # "auto" matches sequentially when there are more frames than this
+    intrinsics: str = "auto"  # "fixed" | "prior" (refine the given K) | "estimate" (ignore it) | "auto"
+    camera_model: str = "SIMPLE_RADIAL"  # model estimated when intrinsics are not fixed
+    undistort: bool = True  # undistort the photos (into the cache) when the lens distortion is significant
+    cache_dir: Optional[Path] = None  # where undistorted photos go (default: see engine.capture.cache)
+    max_num_features: int = 8192  # SIFT features per photo
+    num_threads: int = -1  # -1: all cores
+    align: bool = True  # gravity (+Z up), floor at z = 0 and metric scale after SfM
+    camera_height: float = 1.5  # metres above the floor, for the scale when no known distance is given
+    known_distance: Optional[KnownDistance] = None
+    work_dir: Optional[Path] = None  # keep the worker's files (database, models, log) here; default: temp, deleted
+
+
+@dataclass
+class PoseResult:
+    capture: Capture  # all frames in their order; registered ones posed, all with K of the full-size photos
+    registered: list[str]  # frame names
+    unregistered: list[str]
+    model_sizes: list[int]  # registered photos per model, largest (the one used) first
+    matcher: str
+    camera_model: str  # as estimated ("PINHOLE" when K was fixed)
+    K: np.ndarray  # (3, 3) pinhole intrinsics in pixels of the full-size photos
+    radial_distortion: list[float]  # COLMAP k1[, k2] in the downscaled photos' normalised coordinates
+    mean_reprojection_error: float  # pixels of the downscaled photos
+    points: np.ndarray  # (N, 3) float64 sparse points in the (aligned) world
+    point_colors: np.ndarray  # (N, 3) uint8 RGB
+    scaled_size: tuple[int, int]  # (width, height) of the photos SfM ran on
+    alignment: Optional[Alignment]  # None when options.align is False
+    timings: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # what was done that is no problem (undistortion)
+
+    @property
+    def report(self) -> str:
+        """A few human-readable lines: what registered, how well, which world frame."""
+        total = len(self.registered) + len(self.unregistered)
+        f = 0.5 * (self.K[0, 0] + self.K[1, 1])
+        lines = [
+            f"Camera poses: pycolmap SfM, {self.matcher} matching, {self.camera_model} camera, "
+            f"photos at {self.scaled_size[0]}x{self.scaled_size[1]}",
+            f"  registered {len(self.registered)} of {total} photos"
+            + (f"; not placed: {name_list(self.unregistered)}" if self.unregistered else ""),
+            f"  models: {len(self.model_sizes)} ({', '.join(map(str, self.model_sizes))} photos)"
+            + ("; kept the largest" if len(self.model_sizes) > 1 else ""),
+            f"  focal length {f:.1f} px, principal point ({self.K[0, 2]:.1f}, {self.K[1, 2]:.1f}) "
+            f"in the full-size photos"
+            + (f", radial k {', '.join(f'{k:.4f}' for k in self.radial_distortion)}" if self.radial_distortion else ""),
+            f"  mean reprojection error {self.mean_reprojection_error:.2f} px, {len(self.points)} 3D points",
+        ]
+        if self.alignment is not None:
+            lines.append(f"  world: {self.alignment.description}")
+        if self.timings:
+            lines.append("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in self.timings.items()))
+        lines += [f"  note: {n}" for n in self.notes]
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+def choose_matcher(capture: Capture, options: SfmOptions) -> str:
+    """Sequential for video and large sets (neighbours in time overlap), else exhaustive."""
+    if options.matcher not in MATCHERS:
+        raise PoseError(f"unknown matcher {options.matcher!r}; use one of {', '.join(MATCHERS)}")
+    if options.matcher != "auto":
+        return options.matcher
+    if capture.format == "video" or len(capture.frames) > options.sequential_above:
+        return "sequential"
+    return "exhaustive"
+
+
+def intrinsics_mode(capture: Capture, options: SfmOptions) -> tuple[str, Optional[np.ndarray]]:
+    """("fixed" | "prior" | "estimate", the shared K (3, 3) or None) for this capture.
+
+    "auto" holds a calibrated K fixed, refines an EXIF guess, and estimates from scratch when the
+    frames lack K or disagree (one shared camera cannot honour different K).
+    """
+    if options.intrinsics not in INTRINSICS:
+        raise PoseError(f"unknown intrinsics mode {options.intrinsics!r}; use one of {', '.join(INTRINSICS)}")
+    if options.intrinsics == "estimate":
+        return "estimate", None
+    Ks = [f.K for f in capture.frames]
+    same = all(K is not None for K in Ks) and all(np.allclose(K, Ks[0], rtol=1e-6, atol=1e-6) for K in Ks)
+    if not same:
+        if options.intrinsics != "auto":
+            raise PoseError(
+                f"intrinsics={options.intrinsics!r} needs one K shared by every frame of {capture.root}, "
+                "but some frames have none or they differ; use intrinsics='estimate'"
+            )
+        return "estimate", None
+    mode = options.intrinsics
+    if mode == "auto":
+        mode = "fixed" if capture.format in CALIBRATED_FORMATS else "prior"
+    return mode, np.asarray(Ks[0], dtype=np.float64)
+
+
+def estimate_poses(
+    capture: Capture,
+    options: Optional[SfmOptions] = None,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+) -> PoseResult:
+    """Estimate a camera pose for every frame of `capture` from its photos.
+
+    All frames take part; poses the capture already had are replaced (an SfM model has its own
+    world and cannot be mixed with them). Frames SfM could not place keep `pose=None`.
+    Raises PoseError when no model is found, Cancelled when `cancel` fires.
+    """
+    options = options or SfmOptions()
+    if not capture.frames:
+        raise PoseError(f"no photos in {capture.root}: nothing to estimate poses from")
+    if options.camera_model not in CAMERA_MODELS:
+        raise PoseError(f"unsupported camera model {options.camera_model!r}; use one of {', '.join(CAMERA_MODELS)}")
+    matcher = choose_matcher(capture, options)
+    intrinsics, given_K = intrinsics_mode(capture, options)
+    check(cancel)
+
+    work = Path(options.work_dir) if options.work_dir else Path(tempfile.mkdtemp(prefix="vortx-sfm-"))
+    work.mkdir(parents=True, exist_ok=True)
+    # COLMAP names: the frame index, so duplicate file names in sub-folders cannot collide.
+    names = [f"{i:06d}.jpg" for i in range(len(capture.frames))]
+    job = {
+        "work_dir": str(work),
+        "images": [{"path": str(f.image_path), "name": n} for f, n in zip(capture.frames, names)],
+        "max_side": int(options.max_side),
+        "matcher": matcher,
+        "overlap": int(options.sequential_overlap),
+        "camera_model": options.camera_model,
+        "intrinsics": intrinsics,
+        "K": None if given_K is None else given_K.tolist(),
+        "max_num_features": int(options.max_num_features),
+        "num_threads": int(options.num_threads),
+        # When the photos split into groups, COLMAP silently drops groups smaller than this. Keep
+        # groups of a quarter of the photos (3 to 10, COLMAP's default) so the report names them.
+        "min_model_size": max(3, min(10, len(names) // 4)),
+    }
+    try:
+        job_path = work / "job.json"
+        job_path.write_text(json.dumps(job, indent=1))
+        run_worker(worker_command(job_path), progress=progress, cancel=cancel, log_path=work / "colmap.log")
+        try:
+            result = json.loads((work / "result.json").read_text())
+            with np.load(work / "points.npz") as npz:
+                xyz, rgb = npz["xyz"], npz["rgb"]
+        except (OSError, ValueError) as error:
+            raise PoseError(f"the structure-from-motion process ended without a usable result ({error}); "
+                            "run again with a work_dir to keep its log (colmap.log)") from error
+    finally:
+        if options.work_dir is None:
+            shutil.rmtree(work, ignore_errors=True)
+
+    if not result["model_sizes"]:
+        db = result["database"]
+        raise PoseError(
+            f"no camera poses could be estimated for the {len(names)} photos in {capture.root}: "
+            f"{db['mean_keypoints']:.0f} features per photo on average and {db['verified_pairs']} "
+            "photo pairs with enough matches. Take photos with more overlap (each spot in 3 or more "
+            "photos) of textured surfaces; blank walls, mirrors and blurry photos cannot be matched."
+        )
+    return _pose_result(capture, options, matcher, intrinsics, given_K, result, xyz, rgb, names, progress, cancel)
+
+
+def _pinhole(model: str, params: list[float]) -> tuple[np.ndarray, list[float]]:
+    """COLMAP camera params -> (K (3, 3), radial terms) in the same pixels."""
+    if model in ("SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL"):
+        f, cx, cy = params[:3]
+        fx = fy = f
+        radial = list(params[3:])
+    elif model == "PINHOLE":
+        fx, fy, cx, cy = params[:4]
+        radial = []
+    else:
+        raise PoseError(f"COLMAP returned an unsupported camera model {model}")
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), radial
+
+
+def _cam_to_world(cam_from_world: np.ndarray) -> np.ndarray:
+    """COLMAP's (3, 4) world-to-camera [R | t] -> (4, 4) camera-to-world [R^T | -R^T t]."""
+    rotation, translation = cam_from_world[:, :3], cam_from_world[:, 3]
+    pose = np.eye(4)
+    pose[:3, :3] = rotation.T
+    pose[:3, 3] = -rotation.T @ translation
+    return pose
+
+
+def _pose_result(
+    capture: Capture,
+    options: SfmOptions,
+    matcher: str,
+    intrinsics: str,
+    given_K: Optional[np.ndarray],
+    result: dict,
+    xyz: np.ndarray,
+    rgb: np.ndarray,
+    names: list[str],
+    progress: Optional[ProgressCallback],
+    cancel: Optional[CancelToken],
+) -> PoseResult:
+    """Turn the worker's result into posed frames (full-size K), checks, undistortion and alignment."""
+    camera = result["camera"]
+    sx, sy = result["scale_xy"]
+    K_scaled, radial = _pinhole(camera["model"], camera["params"])
+    if intrinsics == "fixed" and given_K is not None:
+        K = given_K
+    else:
+        # COLMAP's pixel grid has the image corner at 0, so rescaling is a plain per-axis divide.
+        K = np.diag([1.0 / sx, 1.0 / sy, 1.0]) @ K_scaled
+
+    index_of = {name: i for i, name in enumerate(names)}
+    poses = {index_of[im["name"]]: _cam_to_world(np.asarray(im["cam_from_world"], dtype=np.float64))
+             for im in result["images"]}
+    frames: list[Frame] = [replace(f, pose=poses.get(i), K=K.copy()) for i, f in enumerate(capture.frames)]
+    registered = [f.name for i, f in enumerate(capture.frames) if i in poses]
+    unregistered = [f.name for i, f in enumerate(capture.frames) if i not in poses]
+    warnings = quality_warnings(
+        num_images=len(frames),
+        unregistered=unregistered,
+        model_sizes=result["model_sizes"],
+        reprojection_error_px=result["mean_reprojection_error"],
+        num_points=len(xyz),
+    )
+
+    notes: list[str] = []
+    size = tuple(result["source_size"])
+    # The radial terms live in normalised coordinates, which downscaling does not change.
+    shift_px = radial_corner_shift(K_scaled, radial, camera["width"], camera["height"]) / sx if radial else 0.0
+    if significant_distortion(shift_px, size):
+        if options.undistort:
+            frames, K = _undistorted(capture, frames, K, radial, size, options, progress, cancel)
+            notes.append(f"lens distortion (corners moved {shift_px:.1f} px) removed: photos undistorted "
+                         f"into {frames[0].image_path.parent}")
+        else:
+            warnings.append(f"the lens distorts the image corners by about {shift_px:.1f} px and undistort is "
+                            "off: the reconstruction treats the photos as pinhole, so walls near the image "
+                            "edges will bend")
+    posed = capture.with_frames(frames, metric=False)
+
+    alignment = None
+    points = xyz
+    if options.align:
+        alignment = align_gravity_and_scale(
+            posed, camera_height=options.camera_height, known_distance=options.known_distance, points=xyz
+        )
+        posed, points = alignment.capture, alignment.points
+        warnings += alignment.warnings
+    return PoseResult(
+        capture=posed,
+        registered=registered,
+        unregistered=unregistered,
+        model_sizes=list(result["model_sizes"]),
+        matcher=matcher,
+        camera_model=camera["model"] + (" (fixed)" if intrinsics == "fixed" else ""),
+        K=K,
+        radial_distortion=radial,
+        mean_reprojection_error=float(result["mean_reprojection_error"]),
+        points=points if points is not None else np.zeros((0, 3)),
+        point_colors=rgb,
+        scaled_size=(camera["width"], camera["height"]),
+        alignment=alignment,
+        timings={k: float(v) for k, v in result["timings"].items()},
+        warnings=warnings,
+        notes=notes,
+    )
+
+
+def _undistorted(
+    capture: Capture,
+    frames: list[Frame],
+    K: np.ndarray,
+    radial: list[float],
+    size: tuple[int, int],
+    options: SfmOptions,
+    progress: Optional[ProgressCallback],
+    cancel: Optional[CancelToken],
+) -> tuple[list[Frame], np.ndarray]:
+    """Frames pointing at undistorted copies of their photos, with the new pinhole K (3, 3).
+
+    Undistortion only changes intrinsics, so the poses stay valid. COLMAP's RADIAL model equals
+    OpenCV's (k1, k2, p1=0, p2=0).
+    """
+    dist = np.array([radial[0], radial[1] if len(radial) > 1 else 0.0, 0.0, 0.0])
+    folder = capture.root if capture.root.is_dir() else capture.root.parent
+    paths, new_K = undistort_images([f.image_path for f in frames], K, dist, size, folder,
+                                    options.cache_dir, progress, cancel)
+    return [replace(f, image_path=p, K=new_K.copy()) for f, p in zip(frames, paths)], new_K

@@ -1,0 +1,265 @@
+"""Structure from motion with pycolmap, run as a separate process: `python sfm_worker.py JOB.json`.
+
+Why a script of its own: a failed glog CHECK inside COLMAP calls abort() and takes down the whole
+process (platform-notes section 1), which must never be Blender. It is started by file path, not
+as a module, because inside Blender the engine lives under `bl_ext.<repo>.vortx` and a fresh
+interpreter cannot import that; so this file imports nothing from the engine, only pycolmap,
+OpenCV, numpy and the standard library.
+
+Protocol (parsed by `process.py`): stdout and stderr are one stream. Lines starting with `@vortx `
+are ours: `@vortx stage NAME TOTAL`, `@vortx progress NAME DONE TOTAL`, `@vortx error MESSAGE`,
+`@vortx done`. Everything else is COLMAP's log, which the parent also reads for finer progress.
+
+JOB.json (written by `sfm.py`):
+  work_dir           folder for downscaled images, the database and the models
+  images             [{"path": source image, "name": name for COLMAP}], in capture order
+  max_side           downscale so that the larger image side is at most this (0: keep the size)
+  matcher            "sequential" | "exhaustive"
+  overlap            neighbours matched per image by the sequential matcher
+  camera_model       COLMAP model when intrinsics are not fixed ("SIMPLE_RADIAL", "SIMPLE_PINHOLE", ...)
+  intrinsics         "estimate": from scratch; "prior": K (EXIF focal) is the starting guess of
+                     camera_model, refined; "fixed": K is a calibration, PINHOLE held fixed in BA
+  K                  null, or [[3x3]] in pixels of the source images (for "prior" and "fixed")
+  max_num_features   SIFT features per image
+  num_threads        -1 for all cores
+  min_model_size     smallest sub-model COLMAP keeps
+
+Result (work_dir/result.json and work_dir/points.npz): see `_write_result`.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+import traceback
+from pathlib import Path
+
+
+def say(*parts: object) -> None:
+    print("@vortx", *parts, flush=True)
+
+
+def downscale_images(job: dict, image_dir: Path) -> tuple[list[dict], float, float]:
+    """Write a copy of each image with its larger side at most max_side.
+
+    Returns per image {"name", "width", "height"} of the *source* image (after EXIF orientation,
+    which cv2.imread applies, as the engine's K contract assumes) and the per-axis scale factors
+    (scaled / source). Mixed resolutions are refused: one shared camera needs one image size.
+    """
+    import cv2
+    import numpy as np
+
+    image_dir.mkdir(parents=True, exist_ok=True)
+    images = job["images"]
+    max_side = int(job["max_side"])
+    sizes: list[dict] = []
+    scale_xy: tuple[float, float] | None = None
+    say("stage", "prepare", len(images))
+    for i, item in enumerate(images):
+        # imdecode on the bytes, not imread: imread cannot open non-ASCII paths on Windows.
+        # IMREAD_COLOR applies the EXIF orientation, as the engine's load_image does.
+        data = np.fromfile(item["path"], dtype=np.uint8) if Path(item["path"]).is_file() else None
+        image = cv2.imdecode(data, cv2.IMREAD_COLOR) if data is not None and data.size else None
+        if image is None:
+            raise RuntimeError(f"cannot read image {item['path']} (missing, or not an image OpenCV can decode)")
+        height, width = image.shape[:2]
+        if sizes and (width, height) != (sizes[0]["width"], sizes[0]["height"]):
+            raise RuntimeError(
+                f"image {item['path']} is {width}x{height} but {images[0]['path']} is "
+                f"{sizes[0]['width']}x{sizes[0]['height']}; all photos of a capture need the same size"
+            )
+        sizes.append({"name": item["name"], "width": width, "height": height})
+        factor = min(1.0, max_side / max(width, height)) if max_side > 0 else 1.0
+        new_w, new_h = max(1, round(width * factor)), max(1, round(height * factor))
+        if (new_w, new_h) != (width, height):
+            image = cv2.resize(image, (new_w, new_h), interpolation=cv2.INTER_AREA)
+        ok, encoded = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, 95])
+        if not ok:
+            raise RuntimeError(f"cannot encode the downscaled copy of {item['path']}")
+        encoded.tofile(str(image_dir / item["name"]))
+        scale_xy = (new_w / width, new_h / height)
+        say("progress", "prepare", i + 1, len(images))
+    assert scale_xy is not None
+    return sizes, scale_xy[0], scale_xy[1]
+
+
+def reader_options(job: dict, sx: float, sy: float):
+    """Camera model and (for "prior"/"fixed") its starting parameters in the downscaled pixels."""
+    import pycolmap
+
+    options = pycolmap.ImageReaderOptions()
+    mode, model = job["intrinsics"], job["camera_model"]
+    if mode == "estimate":
+        options.camera_model = model
+        return options
+    K = job["K"]
+    # COLMAP's pixel convention has the image corner at 0, so scaling is a plain multiply.
+    fx, fy, cx, cy = K[0][0] * sx, K[1][1] * sy, K[0][2] * sx, K[1][2] * sy
+    if mode == "fixed" or model == "PINHOLE":
+        options.camera_model = "PINHOLE"
+        params = [fx, fy, cx, cy]
+    else:
+        # One-focal models; COLMAP marks the focal as a prior and bundle adjustment refines it.
+        options.camera_model = model
+        extra = {"SIMPLE_PINHOLE": 0, "SIMPLE_RADIAL": 1, "RADIAL": 2}[model]
+        params = [0.5 * (fx + fy), cx, cy] + [0.0] * extra
+    options.camera_params = ",".join(repr(float(v)) for v in params)
+    return options
+
+
+def database_stats(db_path: Path) -> dict:
+    """Keypoints per image and verified pairs: what the user needs to hear when nothing registers."""
+    import pycolmap
+
+    with pycolmap.Database.open(str(db_path)) as db:
+        num_images = db.num_images()
+        keypoints = [db.num_keypoints_for_image(im.image_id) for im in db.read_all_images()]
+        pair_ids, inliers = db.read_two_view_geometry_num_inliers()
+    return {
+        "num_images": int(num_images),
+        "mean_keypoints": float(sum(keypoints) / len(keypoints)) if keypoints else 0.0,
+        # 15 inliers is COLMAP's own threshold for a geometrically verified pair.
+        "verified_pairs": int(sum(1 for n in inliers if n >= 15)),
+    }
+
+
+def run_sfm(job: dict) -> None:
+    import numpy as np
+    import pycolmap
+
+    # INFO lines carry the per-image progress the parent parses; they go to this process's stderr.
+    pycolmap.logging.minloglevel = 0
+    pycolmap.logging.logtostderr = True
+
+    work = Path(job["work_dir"])
+    image_dir = work / "images"
+    db_path = work / "database.db"
+    sparse_dir = work / "sparse"
+    sparse_dir.mkdir(parents=True, exist_ok=True)
+    if db_path.exists():
+        db_path.unlink()
+    timings: dict[str, float] = {}
+
+    start = time.perf_counter()
+    sizes, sx, sy = downscale_images(job, image_dir)
+    timings["prepare"] = time.perf_counter() - start
+    names = [item["name"] for item in job["images"]]
+
+    start = time.perf_counter()
+    say("stage", "extract", len(names))
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = int(job["num_threads"])
+    extraction.sift.max_num_features = int(job["max_num_features"])
+    pycolmap.extract_features(
+        db_path,
+        image_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader_options(job, sx, sy),
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    timings["extract"] = time.perf_counter() - start
+    say("progress", "extract", len(names), len(names))
+
+    start = time.perf_counter()
+    say("stage", "match", len(names))
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = int(job["num_threads"])
+    if job["matcher"] == "sequential":
+        pairing = pycolmap.SequentialPairingOptions()
+        pairing.overlap = int(job["overlap"])
+        # Loop detection needs a vocabulary tree that COLMAP downloads; offline it aborts the process.
+        pairing.loop_detection = False
+        pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+    else:
+        pairing = pycolmap.ExhaustivePairingOptions()
+        # Blocks of ~1/5 of the images (COLMAP logs one line per block) give the progress bar
+        # steps instead of one jump; descriptors stay cached, so this costs little.
+        pairing.block_size = max(10, -(-len(names) // 5))
+        pycolmap.match_exhaustive(db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+    timings["match"] = time.perf_counter() - start
+    say("progress", "match", len(names), len(names))
+    stats = database_stats(db_path)
+
+    start = time.perf_counter()
+    say("stage", "map", len(names))
+    options = pycolmap.IncrementalPipelineOptions()
+    options.num_threads = int(job["num_threads"])
+    options.min_model_size = int(job["min_model_size"])
+    if job["intrinsics"] == "fixed":
+        options.ba_refine_focal_length = False
+        options.ba_refine_principal_point = False
+        options.ba_refine_extra_params = False
+    models = pycolmap.incremental_mapping(db_path, image_dir, sparse_dir, options=options)
+    timings["map"] = time.perf_counter() - start
+    registered = max((r.num_reg_images() for r in models.values()), default=0)
+    say("progress", "map", registered, len(names))
+
+    _write_result(work, models, sizes, sx, sy, stats, timings, np)
+
+
+def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: float, stats: dict, timings: dict, np) -> None:
+    """result.json: {"source_size": [w, h], "scaled_size": [w, h], "model_sizes": [...] (largest first),
+    "camera": {"model", "params", "width", "height"} | null, "images": [{"name", "cam_from_world" 3x4}],
+    "mean_reprojection_error", "num_points3D", "database": stats, "timings"};
+    points.npz: xyz (N, 3) float64, rgb (N, 3) uint8, error (N,) float64 of the largest model."""
+    ordered = sorted(models.values(), key=lambda r: r.num_reg_images(), reverse=True)
+    result: dict = {
+        "source_size": [sizes[0]["width"], sizes[0]["height"]],
+        "scale_xy": [sx, sy],
+        "model_sizes": [int(r.num_reg_images()) for r in ordered],
+        "camera": None,
+        "images": [],
+        "mean_reprojection_error": None,
+        "num_points3D": 0,
+        "database": stats,
+        "timings": timings,
+    }
+    xyz = np.zeros((0, 3))
+    rgb = np.zeros((0, 3), dtype=np.uint8)
+    error = np.zeros((0,))
+    if ordered:
+        best = ordered[0]
+        camera_ids = {best.images[i].camera_id for i in best.reg_image_ids()}
+        camera = best.cameras[sorted(camera_ids)[0]]
+        result["camera"] = {
+            "model": camera.model_name,
+            "params": [float(v) for v in camera.params],
+            "width": int(camera.width),
+            "height": int(camera.height),
+        }
+        for image_id in sorted(best.reg_image_ids()):
+            image = best.images[image_id]
+            result["images"].append(
+                {"name": image.name, "cam_from_world": np.asarray(image.cam_from_world().matrix()).tolist()}
+            )
+        result["mean_reprojection_error"] = float(best.compute_mean_reprojection_error())
+        result["num_points3D"] = int(best.num_points3D())
+        points = list(best.points3D.values())
+        if points:
+            xyz = np.array([p.xyz for p in points], dtype=np.float64)
+            rgb = np.array([p.color for p in points], dtype=np.uint8)
+            error = np.array([p.error for p in points], dtype=np.float64)
+    np.savez(work / "points.npz", xyz=xyz, rgb=rgb, error=error)
+    (work / "result.json").write_text(json.dumps(result))
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) != 2:
+        print("usage: sfm_worker.py JOB.json", file=sys.stderr)
+        return 2
+    try:
+        job = json.loads(Path(argv[1]).read_text())
+        run_sfm(job)
+    except Exception as error:  # reported to the parent, which turns it into a PoseError
+        traceback.print_exc()
+        say("error", " ".join(str(error).split()) or type(error).__name__)
+        return 1
+    say("done")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv))
