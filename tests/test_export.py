@@ -6,6 +6,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pycolmap
 import pytest
 
 from engine.capture import load_capture
@@ -66,7 +67,6 @@ def test_scannet_round_trip_keeps_names_order_poses_and_K(tmp_path):
 
 
 def test_colmap_text_round_trip_through_pycolmap_and_the_loader(tmp_path):
-    pycolmap = pytest.importorskip("pycolmap")
     rng = np.random.default_rng(2)
     capture = posed_capture(tmp_path / "photos", [f"{i}.jpg" for i in range(5)], rng)
     capture.frames[4].K = K * [[1.2, 1, 1], [1, 1.2, 1], [1, 1, 1]]  # a second camera (zoomed)

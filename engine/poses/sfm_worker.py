@@ -35,6 +35,8 @@ import time
 import traceback
 from pathlib import Path
 
+import numpy as np
+
 
 def say(*parts: object) -> None:
     print("@vortx", *parts, flush=True)
@@ -48,7 +50,6 @@ def downscale_images(job: dict, image_dir: Path) -> tuple[list[dict], float, flo
     (scaled / source). Mixed resolutions are refused: one shared camera needs one image size.
     """
     import cv2
-    import numpy as np
 
     image_dir.mkdir(parents=True, exist_ok=True)
     images = job["images"]
@@ -125,7 +126,6 @@ def database_stats(db_path: Path) -> dict:
 
 
 def run_sfm(job: dict) -> None:
-    import numpy as np
     import pycolmap
 
     # INFO lines carry the per-image progress the parent parses; they go to this process's stderr.
@@ -197,10 +197,10 @@ def run_sfm(job: dict) -> None:
     registered = max((r.num_reg_images() for r in models.values()), default=0)
     say("progress", "map", registered, len(names))
 
-    _write_result(work, models, sizes, sx, sy, stats, timings, np)
+    _write_result(work, models, sizes, sx, sy, stats, timings)
 
 
-def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: float, stats: dict, timings: dict, np) -> None:
+def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: float, stats: dict, timings: dict) -> None:
     """result.json: {"source_size": [w, h], "scaled_size": [w, h], "model_sizes": [...] (largest first),
     "camera": {"model", "params", "width", "height"} | null, "images": [{"name", "cam_from_world" 3x4}],
     "mean_reprojection_error", "num_points3D", "database": stats, "timings"};
