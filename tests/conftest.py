@@ -21,6 +21,9 @@ EXTENSION_MODULE = "bl_ext.dev.vortx"
 
 os.environ.setdefault("BLENDER_USER_RESOURCES", tempfile.mkdtemp(prefix="vortx-blender-user-"))
 
+sys.path.insert(0, str(REPO / "scripts"))
+from _extension_dev import mount_checkout  # noqa: E402  (scripts/ is not a package)
+
 
 def shared_dataset(name: str) -> Path:
     """Path to ../shared/data/<name>, or skip the test with a clear reason when it is absent."""
@@ -33,19 +36,10 @@ def shared_dataset(name: str) -> Path:
 @pytest.fixture(scope="session")
 def blender():
     """The bpy module with this checkout enabled as the `vortx` extension. Returns the add-on module."""
-    import addon_utils
-    import bpy
+    import bpy  # noqa: F401  (imported after BLENDER_USER_RESOURCES is set above)
 
-    # A repository folder holds one folder per extension id; link ours in under its id.
-    repo_dir = Path(os.environ["BLENDER_USER_RESOURCES"]) / "dev-extensions"
-    repo_dir.mkdir(parents=True, exist_ok=True)
-    link = repo_dir / "vortx"
-    if not link.exists():
-        link.symlink_to(REPO, target_is_directory=True)
-    repos = bpy.context.preferences.extensions.repos
-    if not any(r.module == "dev" for r in repos):
-        repos.new(name="dev", module="dev", custom_directory=str(repo_dir), source="USER")
-    addon_utils.enable(EXTENSION_MODULE, default_set=True)
+    # One implementation with the batch script: scripts/_extension_dev.py.
+    mount_checkout(Path(os.environ["BLENDER_USER_RESOURCES"]) / "dev-extensions", repo_module="dev", checkout=REPO)
     module = sys.modules.get(EXTENSION_MODULE)
     assert module is not None, f"{EXTENSION_MODULE} did not load"
     return module
