@@ -84,5 +84,5 @@ def test_build_excludes_tests_and_dev_files(tmp_path: Path, capfd: pytest.Captur
         assert required in names, required
     for name in names:
         top = name.split("/")[0]
-        assert top not in {"tests", ".venv", ".git", "docs", "Makefile", "pytest.ini", "requirements.txt", "constraints.txt"}, name
+        assert top not in {"tests", ".venv", ".git", "docs", "Makefile", "pytest.ini"}, name
         assert not name.endswith(".pyc") and "__pycache__" not in name, name

@@ -95,8 +95,12 @@ def canonical_name(name: str) -> str:
 
 def read_pins(path: Path) -> dict[str, str]:
     """`name==version` lines of a requirements/constraints file -> {canonical name: version}."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as error:
+        raise DependencyError(f"cannot read the version pins: {error} (the extension is incomplete; reinstall it)") from error
     pins: dict[str, str] = {}
-    for raw in path.read_text(encoding="utf-8").splitlines():
+    for raw in text.splitlines():
         line = raw.split("#", 1)[0].strip()
         match = re.fullmatch(r"([A-Za-z0-9][A-Za-z0-9._-]*)\s*==\s*([^\s;]+)", line)
         if match:

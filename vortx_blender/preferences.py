@@ -26,10 +26,10 @@ def install_folder() -> Path:
     return dependencies.site_packages_dir(ADDON_PACKAGE)
 
 
-def offline_text(statuses: Sequence[ModuleStatus]) -> str:
+def offline_text(statuses: Sequence[ModuleStatus], folder: Path) -> str:
     """What to do when online access is off: the message with the exact manual command."""
     todo = dependencies.needed(statuses)
-    return dependencies.offline_message(todo, dependencies.manual_command(_python(), install_folder()))
+    return dependencies.offline_message(todo, dependencies.manual_command(_python(), folder))
 
 
 def _python() -> str:
@@ -65,7 +65,7 @@ def draw_dependencies(layout: Any, statuses: Sequence[ModuleStatus], online: boo
         box.label(text=f"Installs {len(todo)} pinned packages (and their dependencies, never numpy) into:")
         _wrapped_labels(box, str(folder))
     else:
-        _wrapped_labels(box, offline_text(statuses))
+        _wrapped_labels(box, offline_text(statuses, folder))
         box.operator(VORTX_OT_copy_install_command.bl_idname, icon="COPYDOWN")
     box.operator(VORTX_OT_check_dependencies.bl_idname, icon="FILE_REFRESH")
 
@@ -74,7 +74,12 @@ class VortxPreferences(bpy.types.AddonPreferences):
     bl_idname = ADDON_PACKAGE
 
     def draw(self, context: bpy.types.Context) -> None:
-        draw_dependencies(self.layout, dependencies.status(), bpy.app.online_access, jobs.active_job(), install_folder())
+        try:
+            statuses = dependencies.status()
+        except dependencies.DependencyError as error:
+            self.layout.label(text=str(error), icon="ERROR")
+            return
+        draw_dependencies(self.layout, statuses, bpy.app.online_access, jobs.active_job(), install_folder())
 
 
 class VORTX_OT_install_dependencies(JobOperatorMixin, bpy.types.Operator):
