@@ -5,7 +5,15 @@ from __future__ import annotations
 import pytest
 import torch
 
-from engine.sparse import SparseVoxels, build_downsample_map, build_submanifold_map, cat_features, conv3d, kernel_offsets
+from engine.sparse import (
+    SparseVoxels,
+    build_downsample_map,
+    build_submanifold_map,
+    cat_features,
+    conv3d,
+    kernel_offsets,
+    lexicographic_order,
+)
 
 
 def brute_force_pairs(coords: torch.Tensor, offset: list[int], stride: int) -> set[tuple[int, int]]:
@@ -30,7 +38,8 @@ def test_offset_orders_follow_torchsparse():
     assert k2 == [[dx, dy, dz] for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)]
 
 
-def test_submanifold_map_equals_brute_force_on_far_apart_coordinates():
+@pytest.mark.parametrize("shuffle", [True, False], ids=["shuffled", "sorted"])
+def test_submanifold_map_equals_brute_force_on_far_apart_coordinates(shuffle):
     # Coordinates spanning a huge, sparse range with negatives and batch values 0 and 3: the packed
     # keys must not alias neighbours across axes or across batch entries.
     gen = torch.Generator().manual_seed(0)
@@ -39,7 +48,8 @@ def test_submanifold_map_equals_brute_force_on_far_apart_coordinates():
     base[:150, 1] += 100_000
     base[150:, 3] -= 70_000
     coords = torch.unique(base, dim=0)
-    coords = coords[torch.randperm(len(coords), generator=gen)]
+    if shuffle:  # torch.unique returns sorted rows; both paths of the map builder are checked
+        coords = coords[torch.randperm(len(coords), generator=gen)]
     kmap = build_submanifold_map(coords, 1, 3)
     assert kmap.identity_offset == 13 and kmap.counts[13] == 0
     offsets = kernel_offsets(3).tolist()
@@ -120,3 +130,11 @@ def test_downsampling_refuses_hand_registered_coarse_coordinates():
     SparseVoxels(torch.tensor([[0, 0, 0, 0]]), torch.randn(1, 2), stride=2, cache=fine.cache)
     with pytest.raises(ValueError, match="not made by downsampling"):
         conv3d(fine, torch.randn(8, 2, 2), 2, stride=2)
+
+
+def test_lexicographic_order():
+    coords = torch.tensor([[1, 0, 0, 0], [0, 5, -2, 1], [0, 5, -3, 7], [0, -9, 9, 9]])
+    order = lexicographic_order(coords)
+    assert order.tolist() == [3, 2, 1, 0]
+    assert lexicographic_order(coords[order]) is None
+    assert lexicographic_order(coords[:1]) is None

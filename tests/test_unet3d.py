@@ -63,7 +63,7 @@ def test_official_level_widths_run(level, in_channels, base, out_channels):
 def test_forward_backward_preserves_coordinates():
     torch.manual_seed(0)
     net = SparseUNet(137, 16).double().train()
-    coords, feats = random_scene(1, 137)
+    coords, feats = random_scene(1, 137, grid=(10, 10, 6))
     feats.requires_grad_()
     out = net(SparseVoxels(coords, feats))
     assert out.coords is coords and out.stride == 1
@@ -73,8 +73,21 @@ def test_forward_backward_preserves_coordinates():
     assert feats.grad is not None and torch.isfinite(feats.grad).all() and feats.grad.abs().sum() > 0
     for name, p in net.named_parameters():
         assert p.grad is not None and torch.isfinite(p.grad).all() and p.grad.abs().sum() > 0, name
-    # Both downsamplings and their transposed partners ran on the same cache.
-    assert sorted(out.cache.coords) == [1, 2, 4]
+
+
+def test_row_order_of_the_input_does_not_matter():
+    torch.manual_seed(0)
+    net = SparseUNet(5, 4).double().eval()
+    coords, feats = random_scene(4, 5)  # shuffled rows: the net sorts internally and restores the order
+    order = torch.argsort(coords[:, 0] * 10**6 + coords[:, 1] * 10**4 + coords[:, 2] * 100 + coords[:, 3])
+    with torch.no_grad():
+        shuffled = net(SparseVoxels(coords, feats))
+        x_sorted = SparseVoxels(coords[order], feats[order])
+        presorted = net(x_sorted)
+    assert shuffled.coords is coords
+    torch.testing.assert_close(shuffled.feats[order], presorted.feats, rtol=1e-9, atol=1e-9)
+    # Sorted input runs directly on its own cache: both strided levels and their maps are there.
+    assert sorted(x_sorted.cache.coords) == [1, 2, 4]
 
 
 def test_batch_elements_do_not_interact():

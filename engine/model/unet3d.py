@@ -8,7 +8,9 @@ Channels ``cs = base * [1, 2, 4, 3, 3]``; with N input voxels at stride s:
     up1     deconv k2 s2 (cs2 -> cs3), BN, ReLU; cat[up, stage1]; Res(cs3 + cs1 -> cs3); Res(cs3)
     up2     deconv k2 s2 (cs3 -> cs4), BN, ReLU; cat[up, stem];   Res(cs4 + cs0 -> cs4); Res(cs4)
 
-Output: (N, cs4) features at exactly the input coordinates (same rows, same order).
+Output: (N, cs4) features at exactly the input coordinates (same rows, same order). Internally the
+network runs on (batch, x, y, z)-sorted rows, so its kernel maps live on a private cache, not on the
+input's.
 
 Attribute names and Sequential indices reproduce the official checkpoint keys under
 ``vortx.cnns3d.<level>.`` (e.g. ``stem.0.kernel`` [27, 137, 16], ``stage1.0.net.0.kernel`` [8, 16, 16],
@@ -18,9 +20,10 @@ official weights is a prefix rename and a copy.
 
 from __future__ import annotations
 
+import torch
 from torch import nn
 
-from ..sparse import SparseBatchNorm, SparseConv3d, SparseReLU, SparseVoxels, cat_features
+from ..sparse import SparseBatchNorm, SparseConv3d, SparseReLU, SparseVoxels, cat_features, lexicographic_order
 
 
 class ConvBlock(nn.Module):
@@ -90,6 +93,17 @@ class SparseUNet(nn.Module):
     def forward(self, x: SparseVoxels) -> SparseVoxels:
         if x.num_channels != self.in_channels:
             raise ValueError(f"SparseUNet expects {self.in_channels} input channels, got {x.num_channels}")
+        order = lexicographic_order(x.coords)
+        if order is None:
+            return self._forward_sorted(x)
+        # Run on (batch, x, y, z)-sorted rows, which makes every kernel map and convolution
+        # cache-friendly (~1.5x faster), then put the rows back in the caller's order.
+        inner = SparseVoxels(x.coords[order], x.feats[order], x.stride)
+        inverse = torch.empty_like(order)
+        inverse[order] = torch.arange(len(order), device=order.device)
+        return x.replace_feats(self._forward_sorted(inner).feats[inverse])
+
+    def _forward_sorted(self, x: SparseVoxels) -> SparseVoxels:
         x0 = self.stem(x)
         x1 = self.stage1(x0)
         x2 = self.stage2(x1)

@@ -6,7 +6,7 @@ and CUDA alike.
 """
 
 from .conv import SparseConv3d, conv3d, sparse_conv_features
-from .kernel_map import KernelMap, build_downsample_map, build_submanifold_map, kernel_offsets
+from .kernel_map import KernelMap, build_downsample_map, build_submanifold_map, kernel_offsets, lexicographic_order
 from .norm import SparseBatchNorm, SparseReLU
 from .tensor import SparseCache, SparseVoxels, cat_features
 
@@ -22,5 +22,6 @@ __all__ = [
     "cat_features",
     "conv3d",
     "kernel_offsets",
+    "lexicographic_order",
     "sparse_conv_features",
 ]
