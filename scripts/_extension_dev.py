@@ -85,14 +85,11 @@ def mount_checkout(repo_dir: Path, repo_module: str = "dev", checkout: Path = CH
 
 
 def unmount(repo_module: str) -> None:
-    """Disable the mounted extension and remove its repository from the (in-memory) preferences,
-    so nothing of a batch run is left behind should the preferences be saved later."""
-    import addon_utils
+    """Remove the mounted repository from the (in-memory) preferences, so nothing of a batch run is
+    left behind should the preferences be saved later. Blender disables the repository's add-ons
+    itself when it is removed (disabling first makes it print a spurious "not enabled")."""
     import bpy
 
-    module_name = extension_module(repo_module)
-    if module_name in bpy.context.preferences.addons:
-        addon_utils.disable(module_name, default_set=True)
     repos = bpy.context.preferences.extensions.repos
     for repo in list(repos):
         if repo.module == repo_module:
