@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..errors import VortxError
     from .config import load_config
-    from .dataset import find_rooms, precompute_room
+    from .dataset import find_rooms, gt_path, precompute_room
     from .loop import CHECKPOINT, Trainer
 
     cfg = load_config(args.config)
@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
 
     if int(os.environ.get("RANK", "0")) == 0:
         for i, room in enumerate(rooms):
-            if not (room / "tsdf_gt_04.npz").is_file():
+            if gt_path(room) is None:
                 print(f"fusing ground truth {i + 1}/{len(rooms)}: {room}", flush=True)
             precompute_room(room)
     if args.precompute_only:
@@ -49,8 +49,18 @@ def run(args: argparse.Namespace) -> int:
     if args.resume:
         trainer.load_checkpoint(trainer.out / CHECKPOINT)
         print(f"resumed at step {trainer.step}", flush=True)
-    trainer.run(until=args.steps)
-    if trainer.dist.is_main and trainer.step >= cfg.total_steps:
+    import time
+
+    start = time.time()
+    records = trainer.run(until=args.steps)
+    if trainer.dist.is_main:
+        summary = {"steps": trainer.step, "total_steps": cfg.total_steps, "wall_s_this_run": round(time.time() - start, 1),
+                   "step_s_mean": round(float(sum(r["time_s"] for r in records) / max(len(records), 1)), 3),
+                   "rooms": [str(r) for r in rooms], "torch_threads": __import__("torch").get_num_threads(),
+                   "device": str(trainer.device), "world_size": trainer.dist.world_size}
+        (trainer.out / "train_summary.json").write_text(json.dumps(summary, indent=2))
+        if trainer.step < cfg.total_steps:
+            print(f"stopped at step {trainer.step} of {cfg.total_steps} (time limit); weights exported as they are", flush=True)
         path = Path(args.export) if args.export else trainer.out / "weights.safetensors"
         trainer.export_weights(path)
         print(f"weights: {path}", flush=True)

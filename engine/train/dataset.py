@@ -2,7 +2,8 @@
 
 A room is a folder in the ScanNet layout written by `engine.data` (colour, metric depth, poses,
 intrinsics, `mesh_gt.ply`). Its ground-truth TSDF at 4 cm is fused once by `precompute_room`
-(`engine.tsdf`) and saved beside it as `tsdf_gt_04.npz`, so training never re-fuses.
+(`engine.tsdf`) and saved beside it as `tsdf_gt_04.npz` (unless the renderer already wrote
+`tsdf_gt.npz`, fused from its exact float depth), so training never re-fuses.
 
 One training sample is a random crop of `crop_size` fine voxels:
 1. anchor = a random voxel with |tsdf| < 0.999; per-axis offset U(0.04, 0.04*size - 0.04);
@@ -35,7 +36,8 @@ import torch.nn.functional as F
 
 from ..errors import VortxError
 
-GT_FILE = "tsdf_gt_04.npz"
+GT_FILE = "tsdf_gt_04.npz"  # written by precompute_room when the renderer did not write one
+SYNTH_GT_FILE = "tsdf_gt.npz"  # written by `python -m engine synth` (fused from exact float depth)
 UNSEEN = 0.999  # |tsdf| at or above this counts as truncated / unobserved
 
 
@@ -98,6 +100,9 @@ def select_keyframes(poses: np.ndarray, min_translation: float = 0.1, min_angle_
 
 
 def is_room_dir(path: Path) -> bool:
+    """A finished room folder (a renderer's unfinished `*.partial` folder is not one)."""
+    if path.name.endswith(".partial"):
+        return False
     return (path / "mesh_gt.ply").is_file() or (path / "pose").is_dir()
 
 
@@ -137,6 +142,14 @@ class _LazyDepths:
         return read_depth(self.paths[i])
 
 
+def gt_path(room: Path) -> Optional[Path]:
+    """The room's 4 cm ground-truth TSDF file: the renderer's `tsdf_gt.npz`, else ours, else None."""
+    for name in (SYNTH_GT_FILE, GT_FILE):
+        if (Path(room) / name).is_file():
+            return Path(room) / name
+    return None
+
+
 def precompute_room(room: Path, force: bool = False, progress=None) -> Path:
     """Fuse the room's ground-truth TSDF at 4 cm (engine.tsdf.fuse_ground_truth: 12 cm truncation,
     3 m depth cap, frustum bounds) and save it as `tsdf_gt_04.npz` (TsdfVolume format) beside it."""
@@ -144,8 +157,10 @@ def precompute_room(room: Path, force: bool = False, progress=None) -> Path:
     from ..tsdf.fusion import fuse_ground_truth
 
     out = Path(room) / GT_FILE
-    if out.is_file() and not force:
-        return out
+    if not force:
+        existing = gt_path(room)
+        if existing is not None:
+            return existing
     capture = load_capture(room)
     frames = [f for f in capture.frames if f.pose is not None and f.depth_path is not None]
     if not frames:
@@ -172,9 +187,9 @@ def load_room(room: Path, image_size: tuple[int, int]) -> RoomData:
     from ..capture import load_capture, load_image
 
     room = Path(room)
-    gt = room / GT_FILE
-    if not gt.is_file():
-        raise VortxError(f"room {room} has no {GT_FILE}; run `python -m engine train CONFIG --precompute` first")
+    gt = gt_path(room)
+    if gt is None:
+        raise VortxError(f"room {room} has no ground-truth TSDF; run `python -m engine train CONFIG --precompute-only` first")
     from ..tsdf.volume import TsdfVolume
 
     volume = TsdfVolume.load(gt)

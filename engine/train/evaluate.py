@@ -15,7 +15,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from .dataset import GT_FILE, precompute_room
+from .dataset import precompute_room
 
 
 def evaluate_rooms(
@@ -38,8 +38,7 @@ def evaluate_rooms(
     if box:
         results["room box"] = {}
     for room in map(Path, rooms):
-        precompute_room(room)
-        volume = TsdfVolume.load(room / GT_FILE)
+        volume = TsdfVolume.load(precompute_room(room))
         gt = read_ply(room / "mesh_gt.ply")
         capture = load_capture(room)
         for label, path in weights.items():
@@ -112,6 +111,29 @@ def shade(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return img.astype(np.uint8)
 
 
+def subdivide(vertices: np.ndarray, faces: np.ndarray, max_edge: float = 0.05, max_rounds: int = 8):
+    """Split triangles with an edge longer than max_edge into 4 (repeatedly), so the point-sampling
+    rasteriser covers big ground-truth triangles without holes."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    for _ in range(max_rounds):
+        tri = v[f]
+        edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(1)
+        big = edge > max_edge
+        if not big.any():
+            break
+        fb = f[big]
+        a, b, c = v[fb[:, 0]], v[fb[:, 1]], v[fb[:, 2]]
+        n0 = len(v)
+        k = len(fb)
+        v = np.concatenate([v, (a + b) / 2, (b + c) / 2, (c + a) / 2])
+        ab, bc, ca = n0 + np.arange(k), n0 + k + np.arange(k), n0 + 2 * k + np.arange(k)
+        new = np.concatenate([np.stack([fb[:, 0], ab, ca], 1), np.stack([ab, fb[:, 1], bc], 1),
+                              np.stack([ca, bc, fb[:, 2]], 1), np.stack([ab, bc, ca], 1)])
+        f = np.concatenate([f[~big], new])
+    return v, f
+
+
 def render_side_by_side(meshes: Sequence, labels: Sequence[str], out_path: Path, size=(320, 240),
                         clip_above: Optional[float] = None) -> Path:
     """One elevated view of each mesh (same camera), ceilings clipped, written as one PNG."""
@@ -123,16 +145,20 @@ def render_side_by_side(meshes: Sequence, labels: Sequence[str], out_path: Path,
     lo, hi = ref.min(0), ref.max(0)
     center = (lo + hi) / 2
     top = hi[2] - 0.3 if clip_above is None else clip_above
-    eye = center + np.array([-(hi[0] - lo[0]) * 0.55, -(hi[1] - lo[1]) * 0.85, (hi[2] - lo[2]) * 1.9])
-    pose = _look_at(eye, center - np.array([0, 0, 0.3]))
+    eye = center + np.array([-(hi[0] - lo[0]) * 0.45, -(hi[1] - lo[1]) * 0.75, (hi[2] - lo[2]) * 1.6])
+    pose = _look_at(eye, center - np.array([0, 0, 0.5]))
     w, h = size
-    K = np.array([[0.9 * w, 0, w / 2], [0, 0.9 * w, h / 2], [0, 0, 1.0]])
+    K = np.array([[0.75 * w, 0, w / 2], [0, 0.75 * w, h / 2], [0, 0, 1.0]])
     panels = []
     for mesh, label in zip(meshes, labels):
         v = np.asarray(mesh.vertices, np.float64)
         f = np.asarray(mesh.faces)
         keep = (v[f][:, :, 2] < top).all(1)  # drop the ceiling so the room is visible from above
-        depth = render_depth(v, f[keep], K, pose, size) if keep.any() else np.full((h, w), np.inf, np.float32)
+        if keep.any():
+            sv, sf = subdivide(v, f[keep])
+            depth = render_depth(sv, sf, K, pose, size)
+        else:
+            depth = np.full((h, w), np.inf, np.float32)
         img = cv2.cvtColor(shade(depth, K), cv2.COLOR_GRAY2BGR)
         cv2.putText(img, label, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (20, 20, 160), 1, cv2.LINE_AA)
         panels.append(img)
@@ -144,3 +170,65 @@ def render_side_by_side(meshes: Sequence, labels: Sequence[str], out_path: Path,
 
 def save_json(obj: dict, path: Path) -> None:
     Path(path).write_text(json.dumps(obj, indent=2))
+
+
+def ship_weights(src: Path, dst: Path, half: bool = True) -> Path:
+    """Copy trained weights to the shipped location (safetensors + JSON sidecar), optionally with
+    floating-point tensors stored as float16 (half the size; they load back into float32)."""
+    import torch
+    from safetensors import safe_open
+    from safetensors.torch import save_file
+
+    from ..model.weights import CONFIG_KEY, FORMAT, FORMAT_KEY, read_config, sidecar_path
+
+    config = read_config(src)
+    tensors = {}
+    with safe_open(str(src), framework="pt") as f:
+        for key in f.keys():
+            t = f.get_tensor(key)
+            tensors[key] = t.half() if half and t.is_floating_point() else t
+    dst = Path(dst)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    save_file(tensors, str(dst), metadata={FORMAT_KEY: FORMAT, CONFIG_KEY: config.to_json()})
+    sidecar_path(dst).write_text(config.to_json() + "\n")
+    return dst
+
+
+def main(argv=None) -> int:
+    """python -m engine.train.evaluate --rooms DIR --weights LABEL=PATH ... [--picture PNG]"""
+    import argparse
+
+    from .dataset import find_rooms
+
+    ap = argparse.ArgumentParser(description="held-out evaluation of trained VoRTX weights")
+    ap.add_argument("--rooms", nargs="+", required=True)
+    ap.add_argument("--weights", nargs="+", required=True, help="LABEL=PATH")
+    ap.add_argument("--out", default="runs/eval")
+    ap.add_argument("--image-size", type=int, default=128)
+    ap.add_argument("--views", type=int, default=12)
+    ap.add_argument("--frustum-depth", type=float, default=3.0)
+    ap.add_argument("--max-room-size", type=float, nargs=3, default=[7.0, 7.0, 3.5])
+    ap.add_argument("--picture", default=None, help="PNG: first room, first weights vs ground truth")
+    args = ap.parse_args(argv)
+    weights = dict(w.split("=", 1) for w in args.weights)
+    rooms = find_rooms(args.rooms)
+    overrides = dict(image_long_side=args.image_size, views=args.views, frustum_depth=args.frustum_depth,
+                     max_room_size=tuple(args.max_room_size))
+    out = Path(args.out)
+    result = evaluate_rooms(rooms, weights, overrides, out_dir=out)
+    result["settings"] = overrides
+    save_json(result, out / "metrics.json")
+    print(metrics_table(result))
+    if args.picture:
+        from ..mesh_io import read_ply
+
+        room = rooms[0]
+        label = next(iter(weights))
+        pred = read_ply(out / f"{room.name}_{_slug(label)}.ply")
+        gt = read_ply(room / "mesh_gt.ply")
+        render_side_by_side([pred, gt], [f"{label} ({room.name})", "ground truth"], Path(args.picture))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

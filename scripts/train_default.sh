@@ -1,0 +1,33 @@
+#!/bin/sh
+# How the shipped default weights (weights/vortx-default.safetensors + .json) were produced.
+# Run from the repository root with the project venv. CPU only; every number below is what was used.
+# Total on the 2-core shared build machine: ~10 min rendering, ~30 min training (both models in
+# parallel, one thread each), ~15 min held-out evaluation. See MODEL.md for the results.
+set -eu
+PY=.venv/bin/python
+
+# 1. Synthetic rooms with Blender (Workbench with procedural textures, 160x120, 40 frames per room).
+#    Training rooms: seeds 0..15. Held-out rooms: seeds 1000..1002 (never used for training).
+#    Each room gets mesh_gt.ply and its 4 cm ground-truth TSDF (tsdf_gt.npz) from the renderer.
+$PY -m engine synth --rooms 3  --out data/synth/heldout --seed 1000 --frames 40 --resolution 160x120 --renderer workbench --quiet
+$PY -m engine synth --rooms 16 --out data/synth/train   --seed 0    --frames 40 --resolution 160x120 --renderer workbench --quiet
+
+# 2. Ground-truth TSDFs for rooms that lack one (none here: the renderer writes them).
+$PY -m engine train configs/train_default.json --precompute-only
+
+# 3. Train VoRTX (transformer fusion + projective occupancy) and the averaging ablation on the same
+#    rooms, same crops (same seed), same steps: phase 1 300 steps + phase 2 150 steps, batch 2.
+$PY -m engine train configs/train_default.json --no-progress > runs/train_default.log 2>&1 &
+$PY -m engine train configs/train_average.json --no-progress > runs/train_average.log 2>&1 &
+wait
+
+# 4. Held-out evaluation (Atlas metrics vs mesh_gt.ply, trimmed to observed voxels) of both models and
+#    the room-box floor, plus the picture in docs/.
+$PY -m engine.train.evaluate --rooms data/synth/heldout \
+    --weights "VoRTX=runs/vortx_default/weights.safetensors" "averaging=runs/vortx_average/weights.safetensors" \
+    --out runs/eval --image-size 128 --views 12 --frustum-depth 3.0 --max-room-size 7 7 3.5 \
+    --picture docs/model_reconstruction.png
+
+# 5. Ship the VoRTX weights (float16 storage, loads into float32) where engine.model.weights.DEFAULT_WEIGHTS points.
+$PY -c "from pathlib import Path; from engine.train.evaluate import ship_weights; \
+ship_weights(Path('runs/vortx_default/weights.safetensors'), Path('weights/vortx-default.safetensors'))"
