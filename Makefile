@@ -23,6 +23,10 @@ test: venv
 demo: venv
 	$(PY) scripts/demo.py
 
+# The installable zip (dist/vortx-<version>.zip), built by Blender's own extension builder.
+extension: venv
+	$(PY) scripts/build_extension.py --output-dir dist
+
 bench: venv
 	$(PY) -m engine bench
 
