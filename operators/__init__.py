@@ -2,9 +2,9 @@
 
 import bpy
 
-from . import capture
+from . import capture, reconstruct
 
-classes: tuple = (*capture.classes,)
+classes: tuple = (*capture.classes, *reconstruct.classes)
 
 
 def register() -> None:

@@ -20,6 +20,12 @@ def test_defaults_and_units(blender, empty_scene) -> None:
     assert (rna["voxel_size"].subtype, rna["voxel_size"].unit) == ("DISTANCE", "LENGTH")
     assert (rna["camera_height"].subtype, rna["camera_height"].unit) == ("DISTANCE", "LENGTH")
     assert set(rna["sfm_matcher"].enum_items.keys()) == {"AUTO", "SEQUENTIAL", "EXHAUSTIVE"}
+    assert (settings.weights_source, settings.weights_path, settings.device, settings.seed) == ("DEFAULT", "", "CPU", 0)
+    assert (settings.result_mode, settings.min_piece_faces, settings.min_piece_fraction, settings.target_faces) == ("REPLACE", 0, 0.0, 0)
+    assert (settings.image_size, settings.colour_views) == (640, 40)
+    assert tuple(settings.max_room_size) == pytest.approx((20.0, 20.0, 6.0))
+    assert set(rna["weights_source"].enum_items.keys()) == {"DEFAULT", "FILE", "RANDOM"}
+    assert set(rna["result_mode"].enum_items.keys()) == {"REPLACE", "ADD"}
 
 
 def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) -> None:
@@ -41,6 +47,17 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
         "sfm_matcher": "EXHAUSTIVE",
         "sfm_max_image_side": 1024,
         "camera_height": 1.25,
+        "weights_source": "FILE",
+        "weights_path": "//weights/official.safetensors",
+        "device": "CPU",
+        "seed": 7,
+        "image_size": 480,
+        "colour_views": 12,
+        "max_room_size": (8.0, 9.0, 3.0),
+        "result_mode": "ADD",
+        "min_piece_faces": 50,
+        "min_piece_fraction": 0.02,
+        "target_faces": 300000,
     }
     settings = empty_scene.vortx
     for name, value in values.items():

@@ -13,7 +13,8 @@ from types import SimpleNamespace
 
 import pytest
 
-PANELS = ("VORTX_PT_capture", "VORTX_PT_pose_settings", "VORTX_PT_reconstruction")
+PANELS = ("VORTX_PT_capture", "VORTX_PT_pose_settings", "VORTX_PT_reconstruction", "VORTX_PT_model", "VORTX_PT_tiles",
+          "VORTX_PT_result", "VORTX_PT_advanced")
 
 
 class RecordingLayout:
@@ -68,6 +69,8 @@ def test_panels_registered_in_vortx_sidebar_tab(blender) -> None:
         cls = getattr(bpy.types, name)
         assert (cls.bl_space_type, cls.bl_region_type, cls.bl_category) == ("VIEW_3D", "UI", "VoRTX"), name
     assert bpy.types.VORTX_PT_pose_settings.bl_parent_id == "VORTX_PT_capture"
+    for name in ("VORTX_PT_model", "VORTX_PT_tiles", "VORTX_PT_result", "VORTX_PT_advanced"):
+        assert getattr(bpy.types, name).bl_parent_id == "VORTX_PT_reconstruction", name
 
 
 def test_capture_panel_before_and_after_import(blender, empty_scene) -> None:
@@ -115,8 +118,12 @@ def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
 @pytest.mark.parametrize(
     "panel, expected",
     [
-        ("VORTX_PT_reconstruction", ["voxel_size", "view_count", "tile_size", "show_tiles"]),
+        ("VORTX_PT_reconstruction", ["voxel_size", "view_count", "tile_size", "result_mode"]),
         ("VORTX_PT_pose_settings", ["sfm_matcher", "sfm_max_image_side", "camera_height"]),
+        ("VORTX_PT_model", ["weights_source", "device", "seed"]),
+        ("VORTX_PT_tiles", ["show_tiles"]),
+        ("VORTX_PT_result", ["min_piece_faces", "min_piece_fraction", "target_faces"]),
+        ("VORTX_PT_advanced", ["image_size", "colour_views", "max_room_size"]),
     ],
 )
 def test_settings_panels_show_their_properties(blender, empty_scene, panel: str, expected: list[str]) -> None:
@@ -126,11 +133,57 @@ def test_settings_panels_show_their_properties(blender, empty_scene, panel: str,
     assert props == expected
 
 
+def test_weights_file_shown_only_when_chosen(blender, empty_scene) -> None:
+    import bpy
+
+    empty_scene.vortx.weights_source = "FILE"
+    props = [c[1]["property"] for c in _draw("VORTX_PT_model", bpy.context) if c[0] == "prop"]
+    assert props == ["weights_source", "weights_path", "device", "seed"]
+
+
+@pytest.mark.parametrize(
+    "panel, expected",
+    [
+        ("VORTX_PT_reconstruction", ["vortx.reconstruct"]),
+        ("VORTX_PT_tiles", ["vortx.preview_tiles", "vortx.bake_tiles"]),
+        ("VORTX_PT_result", ["vortx.clean_result", "vortx.export_result"]),
+    ],
+)
+def test_reconstruction_panels_show_their_operators(blender, empty_scene, panel: str, expected: list[str]) -> None:
+    import bpy
+
+    assert [c[1]["operator"] for c in _draw(panel, bpy.context) if c[0] == "operator"] == expected
+
+
+def test_reconstruction_progress_shows_in_its_own_panel(blender, empty_scene) -> None:
+    import bpy
+
+    jobs = blender.vortx_blender.jobs
+    release, reported = threading.Event(), threading.Event()
+
+    def work(progress, cancel):
+        progress("fusion 16 cm", 2, 8)
+        reported.set()
+        release.wait(10)
+
+    job = jobs.Job("Reconstruct", work, detail=lambda: "tiles 2/8 done, 1 running").start()
+    try:
+        reported.wait(5)
+        job.poll()
+        (progress,) = [c[1] for c in _draw("VORTX_PT_reconstruction", bpy.context) if c[0] == "progress"]
+        assert progress["factor"] == pytest.approx(0.25)
+        assert "fusion 16 cm 2/8, tiles 2/8 done, 1 running" in progress["text"]
+        assert not [c for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "progress"]
+    finally:
+        release.set()
+        job.wait()
+
+
 def test_recorder_rejects_unknown_property(blender, empty_scene) -> None:
     # The checks above can fail: a draw function naming a property that does not exist.
-    draw = blender.ui.panels.draw_reconstruction_settings
+    draw = blender.ui.panels.draw_reconstruction
     layout = RecordingLayout([])
-    draw(layout, empty_scene.vortx)
+    draw(layout, empty_scene.vortx, None)
     with pytest.raises(AssertionError, match="no property"):
         layout.prop(empty_scene.vortx, "voxel_sise")
     with pytest.raises(KeyError):
@@ -139,9 +192,11 @@ def test_recorder_rejects_unknown_property(blender, empty_scene) -> None:
         layout.label(text="x", icon="NO_SUCH_ICON")
 
 
-def test_file_import_menu_entry(blender, empty_scene) -> None:
+def test_file_import_and_export_menu_entries(blender, empty_scene) -> None:
     import bpy
 
     calls: list = []
     blender.ui.menu_import(SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
-    assert [c[1]["operator"] for c in calls if c[0] == "operator"] == ["vortx.import_capture"]
+    blender.ui.menu_export(SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
+    assert [c[1]["operator"] for c in calls if c[0] == "operator"] == ["vortx.import_capture", "vortx.export_result"]
+    assert blender.ui.menu_export in getattr(bpy.types.TOPBAR_MT_file_export.draw, "_draw_funcs", [])

@@ -12,13 +12,19 @@ def menu_import(self: bpy.types.Menu, context: bpy.types.Context) -> None:
     self.layout.operator("vortx.import_capture", text="VoRTX Capture (photos, video, transforms.json)")
 
 
+def menu_export(self: bpy.types.Menu, context: bpy.types.Context) -> None:
+    self.layout.operator("vortx.export_result", text="VoRTX Result (.glb, .ply, .obj)")
+
+
 def register() -> None:
     for cls in classes:
         bpy.utils.register_class(cls)
     bpy.types.TOPBAR_MT_file_import.append(menu_import)
+    bpy.types.TOPBAR_MT_file_export.append(menu_export)
 
 
 def unregister() -> None:
+    bpy.types.TOPBAR_MT_file_export.remove(menu_export)
     bpy.types.TOPBAR_MT_file_import.remove(menu_import)
     for cls in reversed(classes):
         bpy.utils.unregister_class(cls)

@@ -14,6 +14,8 @@ from ..vortx_blender import jobs
 from ..vortx_blender.jobs import Job
 
 CATEGORY = "VoRTX"
+# Jobs whose progress the Reconstruction panel shows; the Capture panel shows the others.
+RECONSTRUCTION_JOBS = ("Reconstruct", "Preview Tiles")
 
 
 def _value_row(layout: Any, label: str, value: str) -> None:
@@ -40,7 +42,7 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job]) -> None:
     else:
         layout.label(text="No capture imported", icon="INFO")
     layout.operator("vortx.estimate_poses", icon="CAMERA_DATA")
-    if job is not None:
+    if job is not None and job.title not in RECONSTRUCTION_JOBS:
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
 
 
@@ -52,13 +54,55 @@ def draw_pose_settings(layout: Any, settings: Any) -> None:
     layout.prop(settings, "camera_height")
 
 
-def draw_reconstruction_settings(layout: Any, settings: Any) -> None:
+def _settings_layout(layout: Any) -> None:
     layout.use_property_split = True
     layout.use_property_decorate = False
+
+
+def draw_reconstruction(layout: Any, settings: Any, job: Optional[Job]) -> None:
+    layout.operator("vortx.reconstruct", icon="MOD_REMESH")
+    if job is not None and job.title in RECONSTRUCTION_JOBS:
+        layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
+    _settings_layout(layout)
     layout.prop(settings, "voxel_size")
     layout.prop(settings, "view_count")
     layout.prop(settings, "tile_size")
+    layout.prop(settings, "result_mode")
+
+
+def draw_model_settings(layout: Any, settings: Any) -> None:
+    _settings_layout(layout)
+    layout.prop(settings, "weights_source")
+    if settings.weights_source == "FILE":
+        layout.prop(settings, "weights_path")
+    layout.prop(settings, "device")
+    layout.prop(settings, "seed")
+
+
+def draw_tiles(layout: Any, settings: Any) -> None:
+    _settings_layout(layout)
     layout.prop(settings, "show_tiles")
+    row = layout.row(align=True)
+    row.operator("vortx.preview_tiles", icon="MESH_GRID")
+    row.operator("vortx.bake_tiles", icon="MOD_WIREFRAME")
+
+
+def draw_result_settings(layout: Any, settings: Any) -> None:
+    _settings_layout(layout)
+    col = layout.column(align=True)
+    col.prop(settings, "min_piece_faces")
+    col.prop(settings, "min_piece_fraction")
+    layout.prop(settings, "target_faces")
+    row = layout.row(align=True)
+    row.operator("vortx.clean_result", icon="BRUSH_DATA")
+    row.operator("vortx.export_result", icon="EXPORT")
+
+
+def draw_advanced_settings(layout: Any, settings: Any) -> None:
+    _settings_layout(layout)
+    layout.prop(settings, "image_size")
+    layout.prop(settings, "colour_views")
+    layout.prop(settings, "max_room_size")
 
 
 class VORTX_PT_capture(bpy.types.Panel):
@@ -93,7 +137,56 @@ class VORTX_PT_reconstruction(bpy.types.Panel):
     bl_category = CATEGORY
 
     def draw(self, context: bpy.types.Context) -> None:
-        draw_reconstruction_settings(self.layout, context.scene.vortx)
+        draw_reconstruction(self.layout, context.scene.vortx, jobs.active_job())
 
 
-classes = (VORTX_PT_capture, VORTX_PT_pose_settings, VORTX_PT_reconstruction)
+class _ReconstructionChild(bpy.types.Panel):
+    bl_space_type = "VIEW_3D"
+    bl_region_type = "UI"
+    bl_category = CATEGORY
+    bl_parent_id = "VORTX_PT_reconstruction"
+
+
+class VORTX_PT_model(_ReconstructionChild):
+    bl_idname = "VORTX_PT_model"
+    bl_label = "Model"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context: bpy.types.Context) -> None:
+        draw_model_settings(self.layout, context.scene.vortx)
+
+
+class VORTX_PT_tiles(_ReconstructionChild):
+    bl_idname = "VORTX_PT_tiles"
+    bl_label = "Tiles"
+
+    def draw(self, context: bpy.types.Context) -> None:
+        draw_tiles(self.layout, context.scene.vortx)
+
+
+class VORTX_PT_result(_ReconstructionChild):
+    bl_idname = "VORTX_PT_result"
+    bl_label = "Result"
+
+    def draw(self, context: bpy.types.Context) -> None:
+        draw_result_settings(self.layout, context.scene.vortx)
+
+
+class VORTX_PT_advanced(_ReconstructionChild):
+    bl_idname = "VORTX_PT_advanced"
+    bl_label = "Advanced"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context: bpy.types.Context) -> None:
+        draw_advanced_settings(self.layout, context.scene.vortx)
+
+
+classes = (
+    VORTX_PT_capture,
+    VORTX_PT_pose_settings,
+    VORTX_PT_reconstruction,
+    VORTX_PT_model,
+    VORTX_PT_tiles,
+    VORTX_PT_result,
+    VORTX_PT_advanced,
+)

@@ -17,7 +17,7 @@ settings on the main thread, return a bpy-free function) and `apply_result` (bui
 from __future__ import annotations
 
 import traceback
-from typing import Any, ClassVar, Optional
+from typing import Any, Callable, ClassVar, Optional
 
 import bpy
 
@@ -32,6 +32,9 @@ class JobOperatorMixin:
     """Mix into a bpy.types.Operator before it: `class X(JobOperatorMixin, bpy.types.Operator)`."""
 
     job_title: ClassVar[str] = "job"
+    # Extra status-bar text while the job runs (a plain function, not a method: the job outlives
+    # the operator instance when Blender frees it).
+    job_detail: ClassVar[Optional[Callable[[], str]]] = None
 
     # --- to implement ----------------------------------------------------------------------
     def make_job_function(self, context: bpy.types.Context) -> JobFunction:
@@ -41,6 +44,9 @@ class JobOperatorMixin:
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: Any) -> set[str]:
         """Build Blender data from the job's result (main thread). Raise VortxError to report a failure."""
         raise NotImplementedError
+
+    def job_finished(self, context: bpy.types.Context, succeeded: bool) -> None:
+        """Called once when the run is over, whatever the outcome (also when it could not start)."""
 
     # --- shared machinery --------------------------------------------------------------------
     @classmethod
@@ -56,9 +62,13 @@ class JobOperatorMixin:
         self._scene_name = context.scene.name
         try:
             function = self.make_job_function(context)
-            return Job(self.job_title, function).start()
+            return Job(self.job_title, function, detail=type(self).job_detail).start()
         except (VortxError, jobs.JobBusy) as error:
             self.report({"ERROR"}, str(error))
+            self.job_finished(context, False)
+        except BaseException:
+            self.job_finished(context, False)
+            raise
         return None
 
     def _is_modal(self, context: bpy.types.Context) -> bool:
@@ -142,6 +152,15 @@ class JobOperatorMixin:
         _redraw_sidebars(context)
 
     def _conclude(self, context: bpy.types.Context, job: Job) -> set[str]:
+        succeeded = False
+        try:
+            outcome = self._apply_outcome(context, job)
+            succeeded = "FINISHED" in outcome
+            return outcome
+        finally:
+            self.job_finished(context, succeeded)
+
+    def _apply_outcome(self, context: bpy.types.Context, job: Job) -> set[str]:
         try:
             result = job.result()
         except Cancelled:

@@ -69,9 +69,11 @@ def is_busy() -> bool:
 class Job(Generic[T]):
     """One run of `function(progress, cancel)` in a daemon worker thread."""
 
-    def __init__(self, title: str, function: JobFunction) -> None:
+    def __init__(self, title: str, function: JobFunction, detail: Optional[Callable[[], str]] = None) -> None:
+        """detail: called on the main thread for extra status text (e.g. tile counts); bpy-free."""
         self.title = title
         self._function = function
+        self._detail = detail
         self._queue: "queue.Queue[object]" = queue.Queue()
         self._cancel = CancelToken()
         self._thread: Optional[threading.Thread] = None
@@ -169,7 +171,9 @@ class Job(Generic[T]):
             return f"VoRTX {self.title}: cancelling..."
         p = self.progress
         steps = f" {p.done}/{p.total}" if p.total > 0 else ""
-        return f"VoRTX {self.title}: {p.stage}{steps}  (Esc to cancel)"
+        detail = self._detail() if self._detail is not None else ""
+        detail = f", {detail}" if detail else ""
+        return f"VoRTX {self.title}: {p.stage}{steps}{detail}  (Esc to cancel)"
 
 
 def cancel_active(timeout: float = 5.0) -> None:

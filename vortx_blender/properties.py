@@ -12,7 +12,15 @@ No `from __future__ import annotations` here: bpy reads the property annotations
 from typing import TYPE_CHECKING
 
 import bpy
-from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
+from bpy.props import (
+    BoolProperty,
+    EnumProperty,
+    FloatProperty,
+    FloatVectorProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
 
 if TYPE_CHECKING:
     from ..engine.capture import Capture
@@ -23,6 +31,11 @@ DEFAULT_VIEW_COUNT = 60
 DEFAULT_TILE_SIZE = 96
 DEFAULT_CAMERA_HEIGHT = 1.5
 DEFAULT_MAX_IMAGE_SIDE = 1024  # engine.poses.SfmOptions.max_side: full registration on real photos at 4x less cost
+# engine.recon.ReconSettings defaults, repeated here because properties must not import the engine's
+# torch side; tests/test_blender_reconstruct.py checks the two agree.
+DEFAULT_IMAGE_SIZE = 640
+DEFAULT_COLOUR_VIEWS = 40
+DEFAULT_MAX_ROOM_SIZE = (20.0, 20.0, 6.0)
 
 MATCHER_ITEMS = [
     ("AUTO", "Auto", "Sequential matching for video-like captures, exhaustive for small unordered sets"),
@@ -31,12 +44,71 @@ MATCHER_ITEMS = [
 ]
 
 
+# Paths may be relative to the .blend file ("//photos"); Blender 5.0 warns about such values unless
+# the property says it supports them, with an option that older versions do not have.
+PATH_OPTIONS = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (5, 0, 0) else set()
+
+WEIGHTS_ITEMS = [
+    ("DEFAULT", "Default", "The VoRTX weights shipped with the extension"),
+    ("FILE", "File", "A .safetensors weights file, e.g. the official checkpoint converted with 'python -m engine convert-official'"),
+    ("RANDOM", "Random", "A randomly initialised network (seeded): tests the pipeline, the mesh is meaningless"),
+]
+
+RESULT_MODE_ITEMS = [
+    ("REPLACE", "Replace", "Replace the previous VoRTX result in the scene"),
+    ("ADD", "Add", "Keep previous results and add the new one beside them (to compare settings)"),
+]
+
+# Dynamic enum items must stay referenced from Python while Blender uses them (strings returned by an
+# items callback are not copied), hence module-level lists rather than fresh ones per call.
+_DEVICE_CPU = ("CPU", "CPU", "Run the network on the processor", "DESKTOP", 0)
+_device_items: list[tuple[str, str, str, str, int]] = [_DEVICE_CPU]
+_devices_probed = False
+
+
+def cuda_device_name() -> str | None:
+    """The first CUDA GPU's name when PyTorch is installed and sees one, else None.
+
+    torch is imported here, on first use, and only if it is installed at all: the extension has to
+    register and draw without torch (it may be installed later through the preferences).
+    """
+    import importlib.util
+
+    if importlib.util.find_spec("torch") is None:
+        return None
+    import torch
+
+    return torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+
+
+def device_items(_self: object = None, _context: object = None) -> list[tuple[str, str, str, str, int]]:
+    """Enum items for scene.vortx.device: CPU, plus CUDA when torch sees a GPU (probed once)."""
+    global _devices_probed
+    if not _devices_probed:
+        name = cuda_device_name()
+        if name is not None:
+            _device_items.append(("CUDA", "CUDA GPU", f"Run the network on {name}", "GPU", 1))
+        # Probe again next time only if torch was not installed yet (an install through the
+        # preferences can add it during the session); a missing GPU will not appear later.
+        import importlib.util
+
+        _devices_probed = importlib.util.find_spec("torch") is not None
+    return _device_items
+
+
+def _show_tiles_changed(settings: "VortxSceneSettings", _context: bpy.types.Context) -> None:
+    from . import tile_overlay
+
+    tile_overlay.sync_draw_handler(settings.show_tiles)
+
+
 class VortxSceneSettings(bpy.types.PropertyGroup):
     # --- capture summary, written by vortx.import_capture / vortx.estimate_poses ---
     capture_path: StringProperty(
         name="Capture",
         description="Folder or file (transforms.json, video, ...) the capture was imported from",
         subtype="FILE_PATH",
+        options=PATH_OPTIONS,
     )
     capture_format: StringProperty(name="Format", description="Capture layout detected on import")
     frame_count: IntProperty(name="Frames", description="Number of photos in the capture", min=0)
@@ -83,6 +155,71 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
         name="Show Tiles",
         description="Draw the reconstruction tiles and their progress in the viewport",
         default=True,
+        update=_show_tiles_changed,
+    )
+    weights_source: EnumProperty(name="Weights", description="Which trained network reconstructs the room", items=WEIGHTS_ITEMS, default="DEFAULT")
+    weights_path: StringProperty(
+        name="Weights File",
+        description="A .safetensors weights file (its JSON config is stored inside it)",
+        subtype="FILE_PATH",
+        options=PATH_OPTIONS,
+    )
+    device: EnumProperty(name="Device", description="Where the network runs", items=device_items, default=0)
+    seed: IntProperty(
+        name="Seed",
+        description="Seed of the per-tile view sampling (and of random weights); the same seed gives the same mesh",
+        default=0,
+        min=0,
+    )
+    image_size: IntProperty(
+        name="Image Size",
+        description="Photos are resized to this long side before the network sees them (it was trained at 640)",
+        default=DEFAULT_IMAGE_SIZE,
+        min=32,
+        max=4096,
+        subtype="PIXEL",
+    )
+    colour_views: IntProperty(
+        name="Colour Views",
+        description="Photos (evenly spaced) that colour the mesh vertices; 0 leaves the mesh grey",
+        default=DEFAULT_COLOUR_VIEWS,
+        min=0,
+        max=1000,
+    )
+    max_room_size: FloatVectorProperty(
+        name="Max Room Size",
+        description="The scene is clipped to this box around the cameras, so a stray pose cannot make it city-sized",
+        default=DEFAULT_MAX_ROOM_SIZE,
+        min=0.5,
+        max=1000.0,
+        size=3,
+        subtype="XYZ",
+        unit="LENGTH",
+    )
+
+    # --- result (vortx.reconstruct, vortx.clean_result) ---
+    result_mode: EnumProperty(name="Result", description="What a new reconstruction does with the previous one", items=RESULT_MODE_ITEMS, default="REPLACE")
+    min_piece_faces: IntProperty(
+        name="Min Piece Faces",
+        description="Drop disconnected pieces with fewer faces than this (floating noise); 0 keeps all",
+        default=0,
+        min=0,
+    )
+    min_piece_fraction: FloatProperty(
+        name="Min Piece Size",
+        description="Drop disconnected pieces smaller than this share of all faces; 0 keeps all",
+        default=0.0,
+        min=0.0,
+        max=1.0,
+        soft_max=0.1,
+        precision=3,
+        subtype="FACTOR",
+    )
+    target_faces: IntProperty(
+        name="Target Faces",
+        description="Decimate the mesh to about this many faces (VR headsets want a few hundred thousand); 0 keeps all",
+        default=0,
+        min=0,
     )
 
     # --- structure-from-motion settings (vortx.estimate_poses) ---

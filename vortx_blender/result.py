@@ -1,0 +1,356 @@
+"""The reconstructed mesh in Blender: fast insertion, vertex colours, material, result collection.
+
+Insertion follows blender-notes.md section 5: float32 positions into the `position` attribute, int32
+corners into `.corner_vert`, `loop_start`, then one `update(calc_edges=True)`; colours as a FLOAT_COLOR
+point attribute filled with `foreach_set`. A 2 M-triangle room goes in in about a second.
+
+Colour management: the engine's colours are photo values (sRGB-encoded, 0..1). Blender's float colour
+attributes hold scene-linear values, so they are linearised on the way in (`srgb_to_linear`); Blender
+shows them as the photos looked, and `color_srgb` reads back the engine's values. Exporters then write
+what each format expects (PLY/OBJ bytes in sRGB, glTF linear floats).
+
+The result objects live in a "VoRTX Result" collection (found by a tag, so renaming it is fine) and
+carry how they were made as custom properties (`vortx_*`), so a .blend file documents its meshes.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Optional
+
+import bpy
+import numpy as np
+
+from ..engine.mesh_io import Mesh
+
+RESULT_COLLECTION_NAME = "VoRTX Result"
+COLLECTION_TAG = "vortx_result_collection"
+RESULT_TAG = "vortx_result"
+MATERIAL_TAG = "vortx_vertex_colour"
+MATERIAL_NAME = "VoRTX Vertex Colour"
+COLOUR_ATTRIBUTE = "Color"
+DECIMATE_MODIFIER = "VoRTX Decimate"
+
+# Custom properties on a result object.
+PROP_CAPTURE = "vortx_capture"
+PROP_SETTINGS = "vortx_settings"
+PROP_WEIGHTS = "vortx_weights"
+PROP_VERSION = "vortx_version"
+PROP_ENGINE_VERSION = "vortx_engine_version"
+PROP_CREATED = "vortx_created"
+PROP_STATS = "vortx_stats"
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """How a result was made; stored on the object as custom properties."""
+
+    capture_path: str
+    settings: dict[str, Any]  # engine ReconSettings.to_dict() plus the Blender-side options
+    weights: str  # the engine's label: a path, "random (seed 0)", ...
+    stats: dict[str, Any]  # a JSON-friendly summary of the run
+
+    def write(self, obj: bpy.types.Object) -> None:
+        from .. import engine
+
+        obj[RESULT_TAG] = True
+        obj[PROP_CAPTURE] = self.capture_path
+        obj[PROP_SETTINGS] = json.dumps(self.settings, sort_keys=True)
+        obj[PROP_WEIGHTS] = self.weights
+        obj[PROP_VERSION] = extension_version()
+        obj[PROP_ENGINE_VERSION] = engine.__version__
+        obj[PROP_CREATED] = datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds")
+        obj[PROP_STATS] = json.dumps(self.stats, sort_keys=True)
+
+
+def extension_version() -> str:
+    """The `version` of blender_manifest.toml in the extension root (the installed package's version)."""
+    import tomllib
+
+    manifest = Path(__file__).resolve().parents[1] / "blender_manifest.toml"
+    try:
+        with open(manifest, "rb") as f:
+            return str(tomllib.load(f)["version"])
+    except (OSError, KeyError, tomllib.TOMLDecodeError):
+        return "unknown"
+
+
+# --- colour conversion ------------------------------------------------------------------------------
+
+
+def srgb_to_linear(values: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function's inverse (IEC 61966-2-1), elementwise, float32."""
+    c = np.asarray(values, dtype=np.float32)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
+
+
+def linear_to_srgb(values: np.ndarray) -> np.ndarray:
+    """The sRGB transfer function (inverse of `srgb_to_linear`), elementwise, float32.
+
+    Used instead of Blender's `color_srgb`, which converts through a lookup table (off by up to 1e-4).
+    """
+    c = np.clip(np.asarray(values, dtype=np.float32), 0.0, None)
+    return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055).astype(np.float32)
+
+
+# --- mesh datablock ---------------------------------------------------------------------------------
+
+
+def build_mesh(name: str, vertices: np.ndarray, faces: np.ndarray, colors: Optional[np.ndarray]) -> bpy.types.Mesh:
+    """A new Mesh datablock of triangles (not linked to anything), smooth shaded, with a colour attribute.
+
+    vertices (V, 3) float32 world metres; faces (F, 3) int32; colors (V, 3) float 0..1 sRGB or None.
+    """
+    vertices = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
+    faces = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1, 3)
+    mesh = bpy.data.meshes.new(name)
+    try:
+        mesh.vertices.add(len(vertices))
+        mesh.loops.add(3 * len(faces))
+        mesh.polygons.add(len(faces))
+        # float64/int64 would drop to the slow per-item path (blender-notes.md section 5): dtypes are exact.
+        mesh.attributes["position"].data.foreach_set("vector", vertices.ravel())
+        mesh.attributes[".corner_vert"].data.foreach_set("value", faces.ravel())
+        mesh.polygons.foreach_set("loop_start", np.arange(0, 3 * len(faces), 3, dtype=np.int32))
+        mesh.update(calc_edges=True)
+        # Marching-cubes surfaces are sampled smooth surfaces; flat shading would show every 4 cm facet.
+        mesh.shade_smooth()
+        if colors is not None:
+            set_point_colours(mesh, colors)
+    except Exception:
+        bpy.data.meshes.remove(mesh)
+        raise
+    return mesh
+
+
+def set_point_colours(mesh: bpy.types.Mesh, colors: np.ndarray) -> bpy.types.Attribute:
+    """(Re)create the FLOAT_COLOR point attribute from sRGB colours (V, 3) and make it the shown one."""
+    colors = np.asarray(colors, dtype=np.float32).reshape(-1, 3)
+    if len(colors) != len(mesh.vertices):
+        raise ValueError(f"{len(colors)} colours for {len(mesh.vertices)} vertices")
+    old = mesh.color_attributes.get(COLOUR_ATTRIBUTE)
+    if old is not None:
+        mesh.color_attributes.remove(old)
+    attribute = mesh.color_attributes.new(COLOUR_ATTRIBUTE, "FLOAT_COLOR", "POINT")
+    rgba = np.ones((len(colors), 4), dtype=np.float32)
+    rgba[:, :3] = srgb_to_linear(colors)
+    attribute.data.foreach_set("color", rgba.ravel())
+    # Active = what the viewport's Attribute colour mode shows; render = what Color Attribute nodes
+    # with an empty name read. Both by index, which is stable until attributes are added.
+    mesh.color_attributes.active_color = attribute
+    mesh.color_attributes.render_color_index = mesh.color_attributes.find(COLOUR_ATTRIBUTE)
+    return attribute
+
+
+def mesh_arrays(mesh: bpy.types.Mesh) -> Mesh:
+    """The triangle mesh of a Blender mesh as engine arrays (colours back in sRGB, normals None).
+
+    Polygons must be triangles (as VoRTX results and their decimations are).
+    """
+    vertices = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+    mesh.attributes["position"].data.foreach_get("vector", vertices)
+    sizes = np.empty(len(mesh.polygons), dtype=np.int32)
+    mesh.polygons.foreach_get("loop_total", sizes)
+    if len(sizes) and np.any(sizes != 3):
+        raise ValueError(f"mesh '{mesh.name}' has polygons that are not triangles")
+    corners = np.empty(len(mesh.loops), dtype=np.int32)
+    mesh.attributes[".corner_vert"].data.foreach_get("value", corners)
+    colors = None
+    attribute = mesh.color_attributes.get(COLOUR_ATTRIBUTE)
+    if attribute is not None and attribute.domain == "POINT":
+        rgba = np.empty(4 * len(mesh.vertices), dtype=np.float32)
+        attribute.data.foreach_get("color", rgba)
+        colors = linear_to_srgb(rgba.reshape(-1, 4)[:, :3])
+    return Mesh(vertices=vertices.reshape(-1, 3), faces=corners.reshape(-1, 3), colors=colors)
+
+
+# --- material ----------------------------------------------------------------------------------------
+
+
+def vertex_colour_material() -> bpy.types.Material:
+    """The shared material showing the colour attribute (reused while its tag is on it)."""
+    for material in bpy.data.materials:
+        if material.get(MATERIAL_TAG):
+            return material
+    material = bpy.data.materials.new(MATERIAL_NAME)
+    material[MATERIAL_TAG] = True
+    material.use_nodes = True  # a no-op from 5.0 (always nodes), needed in 4.x
+    tree = material.node_tree
+    principled = next(node for node in tree.nodes if node.type == "BSDF_PRINCIPLED")
+    principled.inputs["Roughness"].default_value = 0.9  # walls and furniture are matte; no fake gloss
+    colour = tree.nodes.new("ShaderNodeVertexColor")
+    colour.layer_name = COLOUR_ATTRIBUTE
+    colour.location = (principled.location.x - 300, principled.location.y)
+    tree.links.new(colour.outputs["Color"], principled.inputs["Base Color"])
+    return material
+
+
+def show_vertex_colours(screen: Optional[bpy.types.Screen]) -> None:
+    """Solid-mode 3D Views of `screen` show attribute colours (so the result looks like the room)."""
+    if screen is None:
+        return
+    for area in screen.areas:
+        if area.type != "VIEW_3D":
+            continue
+        for space in area.spaces:
+            if space.type == "VIEW_3D":
+                space.shading.color_type = "VERTEX"
+
+
+# --- collection and objects -----------------------------------------------------------------------------
+
+
+def find_result_collection(scene: bpy.types.Scene) -> Optional[bpy.types.Collection]:
+    for collection in scene.collection.children_recursive:
+        if collection.get(COLLECTION_TAG):
+            return collection
+    return None
+
+
+def ensure_result_collection(scene: bpy.types.Scene) -> bpy.types.Collection:
+    collection = find_result_collection(scene)
+    if collection is None:
+        collection = bpy.data.collections.new(RESULT_COLLECTION_NAME)
+        collection[COLLECTION_TAG] = True
+        scene.collection.children.link(collection)
+    return collection
+
+
+def result_objects(scene: bpy.types.Scene) -> list[bpy.types.Object]:
+    """The scene's VoRTX result meshes, oldest first (by name, as Blender numbers duplicates)."""
+    return sorted((obj for obj in scene.objects if obj.get(RESULT_TAG)), key=lambda obj: obj.name)
+
+
+def remove_object(obj: bpy.types.Object) -> None:
+    """Delete an object and its mesh when nothing else uses the mesh."""
+    data = obj.data
+    bpy.data.objects.remove(obj, do_unlink=True)
+    if isinstance(data, bpy.types.Mesh) and data.users == 0:
+        bpy.data.meshes.remove(data)
+
+
+def result_name(capture_path: str) -> str:
+    """The result object's name: the capture folder's (or file's parent folder's) name."""
+    path = Path(capture_path.rstrip("/\\")) if capture_path else None
+    if path is None or not path.name:
+        return "VoRTX Result"
+    # transforms.json / video.mp4 name the format, not the room: use their folder.
+    name = path.parent.name if path.suffix and path.parent.name else path.stem
+    return (name or "VoRTX Result")[:63]
+
+
+def insert_result(
+    scene: bpy.types.Scene,
+    mesh: Mesh,
+    provenance: Provenance,
+    mode: str = "REPLACE",
+    name: Optional[str] = None,
+    target_faces: int = 0,
+    depsgraph: Optional[bpy.types.Depsgraph] = None,
+) -> bpy.types.Object:
+    """Put `mesh` into the scene's result collection as a new object, decimated to about
+    `target_faces` (0: not decimated; needs the scene's `depsgraph`); with mode REPLACE the previous
+    results go. The old results are removed last, and a failure before that removes what was added,
+    so an error leaves the scene as it was."""
+    if mode not in ("REPLACE", "ADD"):
+        raise ValueError(f"mode must be REPLACE or ADD, got {mode!r}")
+    if target_faces > 0 and depsgraph is None:
+        raise ValueError("decimating needs the scene's depsgraph")
+    name = name or result_name(provenance.capture_path)
+    had_material = any(m.get(MATERIAL_TAG) for m in bpy.data.materials)
+    had_collection = find_result_collection(scene) is not None
+    data = build_mesh(name, mesh.vertices, mesh.faces, mesh.colors)
+    obj: Optional[bpy.types.Object] = None
+    try:
+        data.materials.append(vertex_colour_material())
+        obj = bpy.data.objects.new(name, data)
+        provenance.write(obj)
+        collection = ensure_result_collection(scene)
+        collection.objects.link(obj)
+        if target_faces > 0:
+            decimate(obj, target_faces, depsgraph)
+    except Exception:
+        _undo_insert(obj, data, scene, had_material, had_collection)
+        raise
+    if mode == "REPLACE":
+        for old in result_objects(scene):
+            if old != obj:
+                remove_object(old)
+        if obj.name != name:
+            obj.name = name  # the replaced object freed the name; take it back from "name.001"
+            obj.data.name = name
+    return obj
+
+
+def _undo_insert(obj: Optional[bpy.types.Object], data: bpy.types.Mesh, scene: bpy.types.Scene, had_material: bool,
+                 had_collection: bool) -> None:
+    if obj is not None:
+        current = obj.data
+        bpy.data.objects.remove(obj, do_unlink=True)
+        if current is not None and current != data and current.users == 0:
+            bpy.data.meshes.remove(current)
+    try:
+        if data.users == 0:
+            bpy.data.meshes.remove(data)
+    except ReferenceError:
+        pass  # decimate() already swapped it out and removed it
+    if not had_material:
+        for material in [m for m in bpy.data.materials if m.get(MATERIAL_TAG) and m.users == 0]:
+            bpy.data.materials.remove(material)
+    if not had_collection:
+        collection = find_result_collection(scene)
+        if collection is not None and not collection.all_objects:
+            bpy.data.collections.remove(collection)
+
+
+# --- decimation ------------------------------------------------------------------------------------------
+
+
+def decimate(obj: bpy.types.Object, target_faces: int, depsgraph: bpy.types.Depsgraph) -> int:
+    """Reduce `obj`'s mesh to about `target_faces` triangles with a Collapse Decimate modifier, applied.
+
+    Blender's collapse decimation is quadric-error based and interpolates point attributes, so the
+    colours survive. Applied through the evaluated mesh (`new_from_object`), which needs no operator
+    context and so works headless. Returns the new face count (unchanged when already small enough).
+    """
+    faces = len(obj.data.polygons)
+    if target_faces <= 0 or faces <= target_faces:
+        return faces
+    modifier = obj.modifiers.new(DECIMATE_MODIFIER, "DECIMATE")
+    modifier.decimate_type = "COLLAPSE"
+    modifier.use_collapse_triangulate = True  # keep a triangle mesh: exporters and mesh_arrays expect one
+    modifier.ratio = target_faces / faces
+    try:
+        depsgraph.update()
+        evaluated = obj.evaluated_get(depsgraph)
+        new = bpy.data.meshes.new_from_object(evaluated, preserve_all_data_layers=True, depsgraph=depsgraph)
+    finally:
+        obj.modifiers.remove(modifier)
+    old = obj.data
+    name = old.name
+    obj.data = new
+    if old.users == 0:
+        bpy.data.meshes.remove(old)
+    new.name = name
+    # new_from_object keeps the attributes but not which colour attribute is shown.
+    attribute = new.color_attributes.get(COLOUR_ATTRIBUTE)
+    if attribute is not None:
+        new.color_attributes.active_color = attribute
+        new.color_attributes.render_color_index = new.color_attributes.find(COLOUR_ATTRIBUTE)
+    return len(new.polygons)
+
+
+def replace_mesh(obj: bpy.types.Object, mesh: Mesh) -> None:
+    """Give `obj` new geometry from arrays, keeping its materials (used by Clean Result)."""
+    old = obj.data
+    name = old.name
+    new = build_mesh(name, mesh.vertices, mesh.faces, mesh.colors)
+    for material in old.materials:
+        new.materials.append(material)
+    obj.data = new
+    if old.users == 0:
+        bpy.data.meshes.remove(old)
+    new.name = name
