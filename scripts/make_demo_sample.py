@@ -3,7 +3,8 @@
     .venv/bin/python scripts/make_demo_sample.py [--seed 0] [--frames 36] [--out samples/demo_room]
 
 The first seed at or after --seed whose room suits a demo (medium size, a table, a window) is
-rendered with Cycles at 320x240 (16 spp, denoised, JPEG quality 90) along an ordered hand-held walk.
+rendered with Cycles at 320x240 (65 deg like a phone, 16 spp, denoised, JPEG quality 90) along an
+ordered hand-held walk.
 What a user would have -- the photos -- goes to `images/`; what we know and they would not goes to
 `truth/` (ScanNet-layout poses and intrinsics, the ground-truth mesh and TSDF, room.json), so the demo
 can check estimated poses and score the reconstruction. Takes ~3-10 min on 2 cores.
@@ -29,12 +30,14 @@ MAX_TOTAL_BYTES = 5 * 1024 * 1024
 
 
 def suits_demo(spec: RoomSpec) -> bool:
-    """Medium room (short walk between frames), something to look down at, daylight from a window."""
+    """Medium room (short walk between frames), something to look down at, daylight from a window,
+    shelves and clutter (corners and edges for SIFT), yet a small ground-truth mesh."""
     area = spec.length * spec.width
     return (14.0 <= area <= 26.0 and max(spec.length, spec.width) <= 6.0
             and any(p.kind == "table" for p in spec.furniture)
             and any(o.kind == "window" for o in spec.openings)
-            and sum(len(p.parts) for p in spec.furniture) <= 80)
+            and any(p.kind == "shelf" for p in spec.furniture)
+            and 60 <= sum(len(p.parts) for p in spec.furniture) <= 300)
 
 
 def pick_seed(start: int) -> int:
@@ -53,8 +56,8 @@ def main(argv: list[str] | None = None) -> int:
 
     seed = pick_seed(args.seed)
     options = SynthOptions(frames=args.frames,
-                           render=RenderSettings(renderer="cycles", width=320, height=240, samples=16, denoise=True,
-                                                 jpeg_quality=90))
+                           render=RenderSettings(renderer="cycles", width=320, height=240, hfov_deg=65.0, samples=16,
+                                                 denoise=True, jpeg_quality=90))
     with tempfile.TemporaryDirectory(prefix="vortx-demo-") as tmp:
         progress = TqdmProgress()
         try:

@@ -103,7 +103,7 @@ class SceneBuilder:
         # Fine noise tinting the colour: texture at the scale of a few pixels, for SIFT and the CNN.
         detail = nodes.new("ShaderNodeTexNoise")
         detail.inputs["Scale"].default_value = m.detail_scale
-        detail.inputs["Detail"].default_value = 4.0
+        detail.inputs["Detail"].default_value = 8.0
         links.new(vec, detail.inputs["Vector"])
         stretch = nodes.new("ShaderNodeMapRange")  # noise Fac sits near 0.5: stretch it to 0..1
         stretch.inputs["From Min"].default_value = 0.3
@@ -114,6 +114,22 @@ class SceneBuilder:
         strength.inputs[1].default_value = m.detail_strength
         links.new(stretch.outputs["Result"], strength.inputs[0])
         tinted = self._mix(nodes, links, strength.outputs[0], color, tint)
+        if m.speckle_strength > 0:
+            # Spots: Voronoi cells whose centre region (distance below a random radius) is darkened.
+            cells = nodes.new("ShaderNodeTexVoronoi")
+            cells.inputs["Scale"].default_value = m.speckle_scale
+            cells.inputs["Randomness"].default_value = 1.0
+            links.new(vec, cells.inputs["Vector"])
+            spot = nodes.new("ShaderNodeMapRange")  # distance 0.3 -> 0 (outside) ... 0.2 -> 1 (inside)
+            spot.inputs["From Min"].default_value = 0.3
+            spot.inputs["From Max"].default_value = 0.2
+            links.new(cells.outputs["Distance"], spot.inputs["Value"])
+            alpha = nodes.new("ShaderNodeMath")
+            alpha.operation = "MULTIPLY"
+            alpha.inputs[1].default_value = m.speckle_strength
+            links.new(spot.outputs["Result"], alpha.inputs[0])
+            dark = [min(1.0, 0.35 * c) for c in m.colors[1]] + [1.0]
+            tinted = self._mix(nodes, links, alpha.outputs[0], tinted, dark)
         links.new(tinted, bsdf.inputs["Base Color"])
         bsdf.inputs["Roughness"].default_value = m.roughness
         if m.emission > 0:

@@ -34,7 +34,7 @@ class RenderSettings:
     samples: int = 16  # Cycles only
     denoise: bool = True  # Cycles only: OpenImageDenoise (+~25 % time); 16 spp alone is grainy
     max_bounces: int = 4
-    exposure: float = 0.0  # film exposure in stops (Cycles)
+    exposure: float = -0.8  # film exposure in stops: keeps pale walls in the mid-tones where AgX keeps contrast
     jpeg_quality: int = 90
     texture_size: int = 256  # Workbench image textures, pixels per metre of surface
 
@@ -117,6 +117,9 @@ class RoomRenderer:
         r.image_settings.file_format = "JPEG"
         r.image_settings.quality = s.jpeg_quality
         r.use_compositing = True
+        scene.view_settings.view_transform = "AgX"
+        # AgX's base look is flat; more local contrast keeps textures visible to SIFT and the CNN.
+        scene.view_settings.look = "AgX - Medium High Contrast"
         scene.view_settings.exposure = s.exposure
         if s.renderer == "cycles":
             r.engine = "CYCLES"

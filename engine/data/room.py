@@ -33,6 +33,8 @@ class MaterialSpec:
     scale: float  # pattern repeats per metre
     detail_scale: float  # fine-noise frequency per metre (gives SIFT something at pixel scale)
     detail_strength: float  # 0..1 how much the fine noise tints the colour
+    speckle_scale: float  # spots per metre: small high-contrast blobs, what SIFT detects best
+    speckle_strength: float  # 0..1 opacity of the spots (0 = none)
     roughness: float
     rotation: float  # pattern rotation about the surface normal (radians)
     emission: float = 0.0  # > 0 for window backdrops (a bright view outside)
@@ -139,6 +141,8 @@ def generate_room(seed: int) -> RoomSpec:
     openings = _sample_openings(rng, length, width, height, new_material)
     path = make_path_loop(rng, length, width)
     furniture = _sample_furniture(rng, length, width, height, openings, path, pick_material)
+    art = [new_material("art", "any") for _ in range(int(rng.integers(2, 5)))]
+    furniture += _sample_pictures(rng, length, width, height, openings, furniture, art)
     lights = _sample_lights(rng, length, width, height, openings)
     world_color = [float(x) for x in _kelvin_to_rgb(float(rng.uniform(5500, 9000)))]
     return RoomSpec(seed, length, width, height, materials, surfaces, openings, furniture, lights,
@@ -174,8 +178,10 @@ def _sample_material(rng: np.random.Generator, name: str, palette: str, emission
         pattern=pattern,
         colors=[[float(c) for c in base], [float(c) for c in second], [float(c) for c in tint]],
         scale=float(scale),
-        detail_scale=float(rng.uniform(8.0, 25.0)),
-        detail_strength=float(rng.uniform(0.25, 0.6)),
+        detail_scale=float(rng.uniform(10.0, 30.0)),
+        detail_strength=float(rng.uniform(0.35, 0.7)),
+        speckle_scale=float(rng.uniform(5.0, 15.0)),
+        speckle_strength=float(rng.uniform(0.6, 1.0)) if rng.random() < 0.85 else 0.0,
         roughness=float(rng.uniform(0.35, 0.95)),
         rotation=float(rng.uniform(0, np.pi)),
         emission=emission,
@@ -487,3 +493,34 @@ def _sample_lights(rng, length, width, height, openings) -> list[LightSpec]:
         d = np.array([*(np.cos(elevation) * (inward * np.cos(side) + direction * np.sin(side))), -np.sin(elevation)])
         lights.append(light("SUN", (0, 0, height + 5), d / np.linalg.norm(d), rng.uniform(1.5, 4.0), rng.uniform(0.01, 0.05)))
     return lights
+
+
+def _sample_pictures(rng, length, width, height, openings, furniture, art: list[str]) -> list[FurnitureSpec]:
+    """Pictures and posters: thin panels on the walls, clear of openings and of furniture in front."""
+    pictures: list[FurnitureSpec] = []
+    for wall in range(4):
+        start, direction, span = wall_frame(wall, length, width)
+        inward = np.array([-direction[1], direction[0]])
+        taken = [(o.u0 - 0.15, o.u1 + 0.15, o.z0, o.z1) for o in openings if o.wall == wall]
+        for piece in furniture:  # what stands against this wall, as (u range, up to its height)
+            rel = _footprint_corners(piece) - start
+            if (rel @ inward).min() < 0.8:
+                u = rel @ direction
+                taken.append((u.min() - 0.05, u.max() + 0.05, 0.0, piece.height + 0.1))
+        for _ in range(int(rng.integers(0, 3))):
+            w, h = rng.uniform(0.3, 1.1), rng.uniform(0.3, 0.8)
+            z0 = rng.uniform(0.9, 1.5)
+            if z0 + h > height - 0.15 or w > span - 0.4:
+                continue
+            u0 = rng.uniform(0.2, span - 0.2 - w)
+            if any(u0 < b and u0 + w > a and z0 < z1 and z0 + h > z0_ for a, b, z0_, z1 in taken):
+                continue
+            taken.append((u0 - 0.1, u0 + w + 0.1, z0 - 0.1, z0 + h + 0.1))
+            depth = 0.025
+            center = start + direction * (u0 + w / 2) + inward * depth / 2
+            yaw = float(np.arctan2(direction[1], direction[0]))
+            piece = FurnitureSpec("picture", [float(center[0]), float(center[1])], [float(w), depth], yaw, float(z0 + h))
+            material = art[int(rng.integers(0, len(art)))]
+            piece.parts = [_box(piece, 0, 0, z0 + h / 2, w, depth, h, material)]
+            pictures.append(piece)
+    return pictures

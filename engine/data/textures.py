@@ -40,6 +40,11 @@ def material_image(material: MaterialSpec, room_seed: int, size: int = 256) -> n
     detail = _fbm(rng, size, detail_reps, octaves=3)
     mix = np.clip(material.detail_strength * detail, 0, 1)[..., None]
     image = image * (1 - mix) + tint * mix
+    if material.speckle_strength > 0:
+        spots = _speckles(rng, size, max(2, int(round(material.speckle_scale))))
+        spot_color = np.clip(np.asarray(material.colors[1], np.float32) * 0.35, 0, 1)
+        alpha = (material.speckle_strength * spots)[..., None]
+        image = image * (1 - alpha) + spot_color * alpha
     if material.emission > 0:
         # Backdrops are light sources in Cycles; in Workbench a brighter image stands in for that.
         image = np.clip(image * 1.6, 0, 1)
@@ -88,6 +93,19 @@ def _voronoi(rng: np.random.Generator, size: int, n_cells: int) -> np.ndarray:
     owner = index[:, 0] % n
     border = np.clip((dist[:, 1] - dist[:, 0]) * n_cells * 8, 0, 1)
     return (values[owner] * border).reshape(size, size).astype(np.float32)
+
+
+def _speckles(rng: np.random.Generator, size: int, per_tile: int) -> np.ndarray:
+    """(size, size) 0..1 soft round spots of random size, ~per_tile^2 of them, periodic."""
+    n = per_tile * per_tile
+    seeds = rng.random((n, 2)).astype(np.float32)
+    radius = rng.uniform(0.15, 0.45, n).astype(np.float32) / per_tile
+    offsets = np.array([[dx, dy] for dx in (-1, 0, 1) for dy in (-1, 0, 1)], np.float32)
+    tiled = (seeds[None] + offsets[:, None]).reshape(-1, 2)
+    ys, xs = np.mgrid[0:size, 0:size].astype(np.float32) / size
+    dist, index = cKDTree(tiled).query(np.stack([xs.ravel(), ys.ravel()], axis=1), k=1)
+    r = radius[index % n]
+    return np.clip((r - dist) / (0.3 * r), 0, 1).reshape(size, size).astype(np.float32)
 
 
 def _bricks(rng: np.random.Generator, size: int, reps: int) -> np.ndarray:

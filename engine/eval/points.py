@@ -37,8 +37,13 @@ def surface_points(vertices: np.ndarray, faces: np.ndarray, spacing: float = 0.0
     """
     vertices = np.asarray(vertices, np.float64).reshape(-1, 3)
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    # Marching cubes on a NaN-masked volume can leave NaN vertices (VoRTX drops their faces): skip them.
+    finite = np.isfinite(vertices).all(axis=1)
+    if not finite.all():
+        faces = (np.cumsum(finite) - 1)[faces[finite[faces].all(axis=1)]]
+        vertices = vertices[finite]
     if len(vertices) == 0:
-        return vertices
+        return vertices.reshape(0, 3)
     sampler = _DownSampler(vertices.min(axis=0) - 0.5 * (down_sample or 1.0), down_sample) if down_sample else None
     parts: list[np.ndarray] = []
 

@@ -30,19 +30,35 @@ def box_mesh(lo: np.ndarray, hi: np.ndarray) -> Mesh:
     return Mesh(vertices, faces)
 
 
-def fit_room_box(points: np.ndarray, quantile: float = 0.01) -> Mesh:
-    """Box spanning the [quantile, 1 - quantile] range of points (N, 3) per axis (robust to stray points).
+def fit_room_box(points: np.ndarray, bin_size: float = 0.04) -> Mesh:
+    """Axis-aligned box whose sides sit on the dominant planes of surface points (N, 3).
 
-    Pass surface points of the room (near-surface voxels of a TSDF, a reconstruction's vertices, SfM
-    points); use `box_mesh` directly for known bounds (e.g. camera extents plus a margin).
+    Per axis, the coordinates are histogrammed (bin_size) inside their 1 %..99 % range; the lower side
+    is the fullest bin of the lower half, the upper side the fullest bin of the upper half. Walls,
+    floor and ceiling are the largest planes of a room, so they win over furniture, and surfaces seen
+    through doors and windows (beyond the walls) cannot drag the box outward as an extent would.
+    Use `box_mesh` directly for known bounds (e.g. camera extents plus a margin).
     """
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if len(points) == 0:
         raise ValueError("fit_room_box needs at least one point")
-    return box_mesh(np.quantile(points, quantile, axis=0), np.quantile(points, 1 - quantile, axis=0))
+    lo, hi = np.zeros(3), np.zeros(3)
+    for axis in range(3):
+        c = points[:, axis]
+        a, b = np.quantile(c, [0.01, 0.99])
+        if b - a < 2 * bin_size:
+            lo[axis], hi[axis] = a, b
+            continue
+        edges = np.arange(a, b + bin_size, bin_size)
+        counts, edges = np.histogram(c, bins=edges)
+        centres = (edges[:-1] + edges[1:]) / 2
+        half = len(counts) // 2
+        lo[axis] = centres[:half][np.argmax(counts[:half])]
+        hi[axis] = centres[half:][np.argmax(counts[half:])]
+    return box_mesh(lo, hi)
 
 
-def room_box_from_tsdf(volume: TsdfVolume, quantile: float = 0.01) -> Mesh:
-    """Room box fitted to the near-surface voxels (|tsdf| < 1, observed) of a ground-truth TSDF."""
-    near = (np.abs(volume.tsdf) < 0.999) & volume.observed
-    return fit_room_box(volume.positions()[near], quantile)
+def room_box_from_tsdf(volume: TsdfVolume) -> Mesh:
+    """Room box fitted to the voxels next to a surface (|tsdf| < 0.5, i.e. within 6 cm) of a TSDF."""
+    near = (np.abs(volume.tsdf) < 0.5) & volume.observed
+    return fit_room_box(volume.positions()[near], bin_size=volume.voxel_size)
