@@ -34,8 +34,9 @@ class SparseCache:
 
     coords: stride -> the (N_s, 4) coordinate tensor of that stride. The tensor object itself is
         stored (not a copy) so identity checks are free and row order is preserved.
-    kernel_maps: (kind, stride, kernel_size) -> KernelMap, kind in {"submanifold", "downsample"};
-        stride is the stride of the map's *input* tensor.
+    kernel_maps: (kind, stride, kernel_size) -> KernelMap, kind in {"submanifold", "downsample",
+        "upsample"}; stride is the stride of the map's *input* tensor. An upsample map is the
+        transposed downsample map of the next finer stride.
     """
 
     coords: dict[int, Tensor] = field(default_factory=dict)
