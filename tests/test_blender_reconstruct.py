@@ -326,6 +326,19 @@ def test_failures_report_and_change_nothing(blender, capture_dir, fake_engine, b
     assert overlay.current(scene) is shown  # the previous run's tiles are shown again
 
 
+def test_missing_default_weights_name_the_panel_settings(blender, capture_dir, fake_engine, monkeypatch, tmp_path) -> None:
+    import bpy
+
+    _, calls = fake_engine
+    weights = importlib.import_module(f"{blender.__name__}.engine.model.weights")
+    monkeypatch.setattr(weights, "DEFAULT_WEIGHTS", tmp_path / "vortx-default.safetensors")
+    scene = posed_scene(blender, capture_dir, weights_source="DEFAULT")
+    before = full_state(scene)
+    with pytest.raises(RuntimeError, match="not installed .* set Weights to File .* or to Random"):
+        bpy.ops.vortx.reconstruct()
+    assert full_state(scene) == before and calls == []
+
+
 def test_cancel_after_first_progress_changes_nothing(blender, capture_dir, monkeypatch) -> None:
     """The real engine, cancelled through the job runner (what Esc does) at its first progress report."""
     import bpy

@@ -76,9 +76,13 @@ def cuda_device_name() -> str | None:
 
     if importlib.util.find_spec("torch") is None:
         return None
-    import torch
+    try:
+        import torch
 
-    return torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+        return torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
+    except Exception as error:  # a broken torch install must not break the panel; the run will say more
+        print(f"VoRTX: cannot query CUDA devices: {error!r}")
+        return None
 
 
 def device_items(_self: object = None, _context: object = None) -> list[tuple[str, str, str, str, int]]:

@@ -184,10 +184,10 @@ def plan_tiles_job(capture: Capture, settings: ReconSettings) -> JobFunction:
 
 def _check_default_weights() -> None:
     # The engine's own message speaks CLI (--weights); this one names the panel settings.
-    from ..engine.recon.network import default_weights_path
+    from ..engine.model import weights
 
-    path = default_weights_path()
-    if path is None or not path.is_file():
+    path = Path(weights.DEFAULT_WEIGHTS)  # read at call time: the one place that defines it
+    if not path.is_file():
         raise WeightsError(
             f"The default VoRTX weights are not installed (expected at {path}). In Reconstruction > Model set "
             "Weights to File (a .safetensors, e.g. the official checkpoint converted with "
