@@ -430,3 +430,125 @@ def test_invalid_settings_are_refused_with_the_setting_named(blender, empty_scen
     settings.tile_size = 10  # not a multiple of the coarse voxel (4)
     with pytest.raises(blender.engine.errors.VortxError, match="tile size must be a positive multiple of 4"):
         blender.vortx_blender.reconstruct.recon_settings_from_scene(settings)
+
+
+# --- the interactive path: Reconstruct's own methods on a modal stand-in (headless has no events) -------
+
+
+class _WindowManager:
+    def __init__(self) -> None:
+        self.timers: set = set()
+
+    def event_timer_add(self, interval, window=None):
+        timer = object()
+        self.timers.add(timer)
+        return timer
+
+    def event_timer_remove(self, timer) -> None:
+        self.timers.remove(timer)
+
+    def modal_handler_add(self, op) -> bool:
+        return True
+
+    def progress_begin(self, lo, hi) -> None:
+        pass
+
+    def progress_update(self, value) -> None:
+        pass
+
+    def progress_end(self) -> None:
+        pass
+
+
+class _Workspace:
+    def __init__(self) -> None:
+        self.status: list = []
+
+    def status_text_set(self, text) -> None:
+        self.status.append(text)
+
+
+def _modal_reconstruct(blender):
+    """The mixin with VORTX_OT_reconstruct's own methods, held as Blender holds a modal operator."""
+    import bpy
+
+    Mixin = blender.vortx_blender.job_operator.JobOperatorMixin
+    Reconstruct = bpy.types.VORTX_OT_reconstruct
+
+    class Modal(Mixin):
+        job_title = Reconstruct.job_title
+        job_detail = staticmethod(Reconstruct.job_detail)
+        make_job_function = Reconstruct.make_job_function
+        apply_result = Reconstruct.apply_result
+        job_finished = Reconstruct.job_finished
+        options = SimpleNamespace(is_invoke=True)
+
+        def __init__(self) -> None:
+            self.reports: list = []
+
+        def _is_modal(self, context) -> bool:
+            return True
+
+        def report(self, kind, message) -> None:
+            self.reports.append((set(kind), message))
+
+    return Modal()
+
+
+def _tick_until_done(op, context, limit_s: float = 10.0) -> set:
+    import time
+
+    deadline = time.monotonic() + limit_s
+    while time.monotonic() < deadline:
+        result = op.modal(context, SimpleNamespace(type="TIMER", value="NOTHING"))
+        if result != {"RUNNING_MODAL"}:
+            return result
+        time.sleep(0.01)
+    raise AssertionError("the modal run never finished")
+
+
+def test_modal_run_shows_tiles_in_the_status_bar_and_esc_cancels(blender, capture_dir, monkeypatch) -> None:
+    import threading
+    import time
+
+    TileState = blender.engine.recon.TileState
+    ReconResult = importlib.import_module(f"{blender.__name__}.engine.recon.result").ReconResult
+    fusing, finish = threading.Event(), threading.Event()
+
+    def engine(capture, settings, progress=None, cancel=None, plan=None):
+        active = [t for t in plan.tiles if len(t.views)]
+        active[0].state = TileState.RUNNING
+        progress("fusion 16 cm", 0, len(active))
+        fusing.set()
+        while not finish.is_set():
+            cancel.check()  # Esc lands here
+            time.sleep(0.005)
+        for tile in plan.tiles:
+            tile.state = TileState.DONE if len(tile.views) else TileState.EMPTY
+        return ReconResult(box_room_mesh(blender), plan.tiles, {"model": {"weights": "stand-in"}}, None)
+
+    monkeypatch.setattr(driver(blender), "reconstruct", engine)
+    scene = posed_scene(blender, capture_dir)
+    context = SimpleNamespace(scene=scene, window=object(), window_manager=_WindowManager(), workspace=_Workspace(),
+                              screen=None)
+    before = full_state(scene)
+
+    op = _modal_reconstruct(blender)
+    assert op.execute(context) == {"RUNNING_MODAL"}
+    assert fusing.wait(10)
+    time.sleep(0.05)
+    assert op.modal(context, SimpleNamespace(type="TIMER", value="NOTHING")) == {"RUNNING_MODAL"}
+    status = context.workspace.status[-1]
+    assert status.startswith("VoRTX Reconstruct: fusion 16 cm 0/") and ", tiles 0/" in status and "1 running" in status
+    assert op.modal(context, SimpleNamespace(type="ESC", value="PRESS")) == {"RUNNING_MODAL"}
+    assert _tick_until_done(op, context) == {"CANCELLED"}
+    assert full_state(scene) == before
+    assert blender.vortx_blender.tile_overlay.current(scene) is None  # nothing shown from the cancelled run
+
+    finish.set()  # the next run goes through to the end
+    op = _modal_reconstruct(blender)
+    assert op.execute(context) == {"RUNNING_MODAL"}
+    assert _tick_until_done(op, context) == {"FINISHED"}
+    assert results_in(blender, scene) == ["living_room"]
+    assert context.workspace.status[-1] is None and context.window_manager.timers == set()
+    assert set(blender.vortx_blender.tile_overlay.current(scene).states()) <= {"done", "empty"}
