@@ -1,0 +1,177 @@
+"""`make demo`: the whole product on the bundled sample capture, checked against the sample's truth.
+
+    .venv/bin/python scripts/demo.py [--weights PATH|random] [--device cpu|cuda] [--sample samples/demo_room]
+
+1. Runs scripts/vortx_batch.py on the sample's photos only (samples/demo_room/images): Import
+   Capture, Estimate Poses (structure from motion, gravity, scale from the 1.5 m camera height),
+   Reconstruct with the default weights -> out/demo.blend and out/demo.ply.
+2. Pose error: the estimated cameras (read back from out/demo.blend) against truth/pose, after the
+   similarity (Sim(3)) that best maps the estimated camera centres onto the true ones; SfM knows
+   the world only up to such a transform.
+3. out/demo.png: a capture photo beside a Workbench render (vertex colours) of the mesh from that
+   photo's estimated camera, at the photo's resolution.
+4. F-score against truth/mesh_gt.ply: the mesh is moved into the truth frame with the same Sim(3)
+   first, then scored with the Atlas metrics (5 cm threshold), trimmed to the space the truth TSDF
+   observed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any, Optional, Sequence
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "scripts"))
+
+from engine.eval import evaluate_mesh  # noqa: E402
+from engine.mesh_io import Mesh, read_ply  # noqa: E402
+from engine.poses import Similarity, pose_errors, umeyama  # noqa: E402
+from engine.tsdf.volume import TsdfVolume  # noqa: E402
+
+BATCH = REPO / "scripts" / "vortx_batch.py"
+
+
+class DemoError(Exception):
+    pass
+
+
+def say(message: str) -> None:
+    print(f"demo: {message}", flush=True)
+
+
+def run_batch(images: Path, blend: Path, ply: Path, extra: Sequence[str]) -> None:
+    """The batch script in its own process, exactly as a user runs it (its progress streams through)."""
+    command = [sys.executable, str(BATCH), str(images), "--out", str(blend), "--export", str(ply), *extra]
+    say("running " + " ".join(Path(a).name if a == str(BATCH) else a for a in command[1:]))
+    if subprocess.run(command, cwd=REPO).returncode != 0:
+        raise DemoError("the batch run failed (its error is above)")
+
+
+def read_capture_cameras(blend: Path, render_to: Path) -> tuple[dict[str, np.ndarray], str]:
+    """Open the batch's .blend: return {photo stem: estimated camera-to-world} and render the mesh
+    from the middle capture camera (Workbench, vertex colours, the photo's resolution) into
+    `render_to`. Returns also the rendered photo's path."""
+    import bpy
+    from vortx_batch import vortx_extension
+
+    with vortx_extension() as addon:
+        bpy.ops.wm.open_mainfile(filepath=str(blend))
+        scene = bpy.context.scene
+        capture = addon.vortx_blender.cameras.posed_capture_from_scene(scene)
+        if capture is None or not capture.posed_frames:
+            raise DemoError(f"{blend} has no posed capture cameras")
+        estimated = {Path(f.image_path).stem: f.pose for f in capture.posed_frames}
+        cameras = sorted((o for o in scene.objects if addon.vortx_blender.cameras.is_capture_camera(o)),
+                         key=lambda o: int(o[addon.vortx_blender.cameras.PROP_FRAME]))
+        camera = cameras[len(cameras) // 2]
+        render_mesh(scene, camera, render_to)
+        return estimated, str(camera[addon.vortx_blender.cameras.PROP_IMAGE])
+
+
+def render_mesh(scene: Any, camera: Any, path: Path) -> None:
+    import bpy
+
+    scene.camera = camera
+    scene.render.engine = "BLENDER_WORKBENCH"
+    scene.display.shading.light = "STUDIO"
+    scene.display.shading.color_type = "VERTEX"
+    # The photos are sRGB and the vertex colours came from them: no filmic/AgX tone curve on top.
+    scene.view_settings.view_transform = "Standard"
+    scene.render.resolution_percentage = 100  # resolution_x/y were set to the photos' size on import
+    scene.render.film_transparent = False
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.filepath = str(path)
+    bpy.ops.render.render(write_still=True)
+    if not path.is_file():
+        raise DemoError(f"the Workbench render did not write {path}")
+
+
+def true_poses(truth: Path, stems: Sequence[str]) -> dict[str, np.ndarray]:
+    return {s: np.loadtxt(truth / "pose" / f"{s}.txt").reshape(4, 4) for s in stems if (truth / "pose" / f"{s}.txt").is_file()}
+
+
+def side_by_side(photo: Path, render: Path, out: Path) -> None:
+    import cv2
+
+    left, right = cv2.imread(str(photo)), cv2.imread(str(render))
+    if left is None or right is None:
+        raise DemoError(f"cannot read {photo if left is None else render}")
+    if right.shape != left.shape:  # the render is made at the photo's size; a mismatch is a bug worth seeing, not hiding
+        raise DemoError(f"render {right.shape[1]}x{right.shape[0]} does not match photo {left.shape[1]}x{left.shape[0]}")
+    gap = np.full((left.shape[0], 4, 3), 255, np.uint8)
+    picture = np.concatenate([left, gap, right], axis=1)
+    for text, x in (("photo", 6), ("VoRTX mesh", left.shape[1] + 10)):
+        cv2.putText(picture, text, (x, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+    if not cv2.imwrite(str(out), picture):
+        raise DemoError(f"cannot write {out}")
+
+
+def aligned(mesh: Mesh, sim: Similarity) -> Mesh:
+    """The mesh moved by a similarity (normals rotate; colours and faces stay)."""
+    normals = None if mesh.normals is None else (np.asarray(mesh.normals, np.float64) @ sim.rotation.T).astype(np.float32)
+    return Mesh(vertices=sim.apply_points(mesh.vertices).astype(np.float32), faces=mesh.faces, normals=normals, colors=mesh.colors)
+
+
+def main(argv: Optional[Sequence[str]] = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sample", type=Path, default=REPO / "samples" / "demo_room", help="sample folder with images/ and truth/")
+    parser.add_argument("--out-dir", type=Path, default=REPO / "out")
+    parser.add_argument("--weights", help="weights file or 'random' (default: the shipped weights/vortx-default.safetensors)")
+    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    args = parser.parse_args(argv)
+
+    images, truth, out = args.sample / "images", args.sample / "truth", args.out_dir.resolve()
+    # A private Blender user folder (unless one is set): the demo shows this checkout, and neither
+    # uses nor touches the preferences and extensions of the user's own Blender.
+    os.environ.setdefault("BLENDER_USER_RESOURCES", str(out / "blender-user"))
+    blend, ply, render, picture = out / "demo.blend", out / "demo.ply", out / "demo_render.png", out / "demo.png"
+    try:
+        if not images.is_dir() or not (truth / "mesh_gt.ply").is_file():
+            raise DemoError(f"the demo sample is incomplete at {args.sample}: regenerate it with scripts/make_demo_sample.py")
+        if args.weights is None:
+            from engine.model.weights import DEFAULT_WEIGHTS
+
+            if not DEFAULT_WEIGHTS.is_file():
+                raise DemoError(f"the default weights are not in the checkout yet ({DEFAULT_WEIGHTS.relative_to(REPO)}); "
+                                "`scripts/demo.py --weights random` runs every stage with a random network (meaningless mesh)")
+        out.mkdir(parents=True, exist_ok=True)
+        extra = ["--device", args.device] + (["--weights", args.weights] if args.weights else [])
+        run_batch(images, blend, ply, extra)
+
+        estimated, photo = read_capture_cameras(blend, render)
+        truths = true_poses(truth, sorted(estimated))
+        stems = sorted(truths)
+        if len(stems) < 3:
+            raise DemoError(f"only {len(stems)} estimated cameras have a true pose; a Sim(3) needs 3")
+        errors = pose_errors([estimated[s] for s in stems], [truths[s] for s in stems])
+        # The same fit pose_errors makes: estimated world -> truth world, from the camera centres.
+        sim = umeyama(np.array([estimated[s][:3, 3] for s in stems]), np.array([truths[s][:3, 3] for s in stems]))
+        total = len(list(truth.glob("pose/*.txt")))
+        say(f"poses vs truth ({len(stems)} of {total} photos registered; after the Sim(3) fit of the camera centres, "
+            f"scale {sim.scale:.3f}): rotation error mean {errors['rotation_deg_mean']:.2f} deg "
+            f"(max {errors['rotation_deg_max']:.2f}), position error mean {100 * errors['position_mean']:.1f} cm "
+            f"(max {100 * errors['position_max']:.1f} cm)")
+
+        side_by_side(Path(photo), render, picture)
+        say(f"wrote {picture} ({Path(photo).name} beside a Workbench render of the mesh from its estimated camera)")
+
+        metrics = evaluate_mesh(aligned(read_ply(ply), sim), read_ply(truth / "mesh_gt.ply"), TsdfVolume.load(truth / "tsdf_gt.npz"))
+        say(f"mesh vs truth (mesh moved into the truth frame by the camera-centre Sim(3), both trimmed to the space the "
+            f"truth observed): F-score {metrics.fscore:.3f} at 5 cm (precision {metrics.prec:.3f}, recall {metrics.recall:.3f}; "
+            f"accuracy {100 * metrics.acc:.1f} cm, completeness {100 * metrics.comp:.1f} cm)")
+        say(f"outputs: {blend}, {ply}, {picture}")
+    except DemoError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
