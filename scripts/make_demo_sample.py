@@ -89,8 +89,9 @@ def readme(seed: int, args: argparse.Namespace, record: dict) -> str:
     return f"""# Demo capture: a synthetic room
 
 {args.frames} photos of a procedurally generated room (seed {seed}, {length:.2f} x {width:.2f} m, {height:.2f} m
-high), rendered with Blender {record['blender']} Cycles at 320x240 (16 samples, denoised, JPEG quality 90)
-along a hand-held walk round the room. Regenerate it (a few minutes on 2 cores) with:
+high), rendered with Blender {record['blender']} Cycles at 320x240 ({record['render']['hfov_deg']:g} deg horizontal field of view,
+16 samples, denoised, JPEG quality 90) along a hand-held walk round the room. Regenerate it (3-15 min
+on 2 cores, depending on load) with:
 
     .venv/bin/python scripts/make_demo_sample.py --seed {args.seed} --frames {args.frames}
 
@@ -98,7 +99,7 @@ along a hand-held walk round the room. Regenerate it (a few minutes on 2 cores) 
 - `truth/` -- what the renderer knows, for checking results (never read by `make demo` to reconstruct):
   - `pose/<stem>.txt`: camera-to-world 4x4 of `images/<stem>.jpg` (metres, world Z up, OpenCV camera axes);
   - `intrinsic/intrinsic_color.txt`: K as 4x4, f = {K[0][0]:.3f} px, principal point ({K[0][2]:g}, {K[1][2]:g})
-    with pixel (0, 0) covering [0, 1)^2; `truth/` is itself a ScanNet-layout folder apart from the photos;
+    with pixel (0, 0) covering [0, 1)^2 (the engine's convention; Blender's unshifted camera);
   - `mesh_gt.ply`: every triangle of the scene in world metres (`python -m engine eval PRED.ply samples/demo_room/truth`);
   - `tsdf_gt.npz`: the ground-truth TSDF (4 cm, fused from the exact depth), used to trim predictions to observed space;
   - `room.json`: the full room description and render settings; `render_stats.json`: render timings.
