@@ -5,7 +5,12 @@ building Blender data, the job runner), `operators` and `ui`; the reconstruction
 which never imports bpy.
 """
 
-from . import operators, ui, vortx_blender
+from .engine.process_guards import keep_triton_out
+
+# Blender renders with an LLVM of its own; Triton's clashes with it (see process_guards).
+keep_triton_out()
+
+from . import operators, ui, vortx_blender  # noqa: E402
 
 # Order matters: operators and panels reference scene.vortx, which vortx_blender registers.
 _modules = (vortx_blender, operators, ui)

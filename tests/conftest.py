@@ -15,6 +15,11 @@ from pathlib import Path
 
 import pytest
 
+from engine.process_guards import keep_triton_out
+
+# Tests render with Workbench and then train in the same process (see engine/process_guards.py).
+keep_triton_out()
+
 REPO = Path(__file__).resolve().parent.parent
 SHARED_DATA = REPO.parent / "shared" / "data"
 EXTENSION_MODULE = "bl_ext.dev.vortx"

@@ -63,6 +63,9 @@ class RoomRenderer:
     """A room built in its own Blender scene, ready to render from any pose. Use as a context manager."""
 
     def __init__(self, spec: RoomSpec, parts: list[MeshPart], settings: RenderSettings) -> None:
+        from ..process_guards import keep_triton_out
+
+        keep_triton_out()  # a Workbench render here must not meet Triton later (see process_guards)
         import bpy
 
         self.bpy = bpy
