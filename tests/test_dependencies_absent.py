@@ -72,11 +72,6 @@ def test_registers_without_torch_pycolmap_skimage_safetensors(tmp_path: Path) ->
     assert result["imported"] == []
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="operators/capture.py and vortx_blender/capture.py import engine.capture at module level, and "
-    "engine/capture/images.py imports cv2 and PIL at import time, so registering needs OpenCV and Pillow",
-)
 def test_registers_without_opencv_and_pillow(tmp_path: Path) -> None:
     result = _load_without(["cv2", "PIL"], tmp_path)
     assert result["loaded"], result

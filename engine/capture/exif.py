@@ -15,9 +15,10 @@ Otherwise the focal length is unknown (None) and structure from motion estimates
 from __future__ import annotations
 
 import math
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
-from PIL import ExifTags, Image
+if TYPE_CHECKING:  # Pillow is imported only where EXIF is read, so registering needs no Pillow
+    from PIL import Image
 
 ORIENTATION_TAG = 0x0112
 # Orientations 5..8 store the picture transposed: displayed width and height are swapped.
@@ -47,6 +48,8 @@ def _exif_tag(exif: Image.Exif, tag: int) -> Optional[float]:
     """A numeric tag from the Exif sub-IFD (or IFD0, where some writers put it), or None."""
     value = None
     try:
+        from PIL import ExifTags
+
         value = exif.get_ifd(ExifTags.IFD.Exif).get(tag)
     except Exception:  # a malformed sub-IFD must not make a readable photo unusable
         value = None

@@ -20,7 +20,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
-import cv2
 import numpy as np
 
 from ..errors import CaptureError
@@ -128,6 +127,7 @@ def write_scannet(capture: Capture, out_dir: Path | str, overwrite: bool = False
         if frame.image_path.suffix.lower() in _COPY_SUFFIXES:
             shutil.copyfile(frame.image_path, target)
         else:
+            import cv2
             ok, encoded = cv2.imencode(".jpg", cv2.cvtColor(load_image(frame.image_path), cv2.COLOR_RGB2BGR),
                                        [cv2.IMWRITE_JPEG_QUALITY, 95])
             if not ok:

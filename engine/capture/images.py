@@ -13,9 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Optional
 
-import cv2
 import numpy as np
-from PIL import Image
 
 from ..errors import CaptureError
 from . import exif as exif_tags
@@ -66,6 +64,8 @@ def read_image_info(path: Path, verify: bool = True) -> ImageInfo:
         raise CaptureError(f"cannot read image {path}: {error.strerror or error}. Check that the file exists "
                            "and is readable.") from error
     digest = hashlib.blake2b(data, digest_size=16).hexdigest()
+    from PIL import Image  # imported here so the extension registers in a Blender without Pillow
+
     try:
         with Image.open(io.BytesIO(data)) as image:
             if image.format not in _DECODABLE_FORMATS:
@@ -105,6 +105,7 @@ def load_image(path: Path | str) -> np.ndarray:
     except OSError as error:
         raise CaptureError(f"cannot read image {path}: {error.strerror or error}. Check that the file exists "
                            "and is readable.") from error
+    import cv2
     bgr = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     if bgr is None:
         raise CaptureError(f"image {path} cannot be decoded (corrupt or not a JPEG/PNG): re-export it or "
