@@ -78,3 +78,16 @@ def test_batch_projective_loss_covers_sample_1():
     maps2 = maps.clone()
     maps2[1] = 5.0
     assert not torch.isclose(base, L.projective_occupancy_loss_batch(logits, sample, pixels, depth, valid, maps2, 0.12))
+
+
+def test_balanced_occupancy_weighs_the_rare_class():
+    occ = torch.zeros(1, 4, 1, 1)
+    occ[0, 0] = 1.0  # 1 occupied, 3 empty
+    mask = torch.ones(1, 4, 1, 1, dtype=torch.bool)
+    coords = torch.tensor([[0, i, 0, 0] for i in range(4)])
+    logits = torch.full((4,), -2.0)
+    plain = L.occupancy_loss(logits, coords, occ, mask)
+    balanced = L.occupancy_loss(logits, coords, occ, mask, balanced=True)
+    sp = torch.nn.functional.softplus
+    assert torch.isclose(balanced, (3 * sp(torch.tensor(2.0)) + 3 * sp(torch.tensor(-2.0))) / 4)
+    assert balanced > plain

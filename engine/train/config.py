@@ -44,6 +44,7 @@ class TrainConfig:
     phase2: PhaseConfig = field(
         default_factory=lambda: PhaseConfig(lr=1e-4, freeze_backbone=False, use_proj_occ=True)
     )
+    occ_balanced: bool = False  # occupancy BCE with pos_weight n_empty/n_occupied (not in the spec)
     seed: int = 0
     out_dir: str = "runs/{name}"
     log_every: int = 1

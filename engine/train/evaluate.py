@@ -57,6 +57,8 @@ def evaluate_rooms(
             m = evaluate_mesh(room_box_from_tsdf(volume), gt, observed=volume).as_dict()
             results["room box"][room.name] = m
             print(f"{room.name} room box: F {m['fscore']:.3f}", flush=True)
+        if out_dir is not None:  # partial results survive an interrupted run
+            save_json({"per_room": results}, Path(out_dir) / "metrics_partial.json")
     summary = {}
     for label, per_room in results.items():
         keys = ("acc", "comp", "prec", "recall", "fscore")
@@ -208,6 +210,7 @@ def main(argv=None) -> int:
     ap.add_argument("--views", type=int, default=12)
     ap.add_argument("--frustum-depth", type=float, default=3.0)
     ap.add_argument("--max-room-size", type=float, nargs=3, default=[7.0, 7.0, 3.5])
+    ap.add_argument("--no-box", action="store_true", help="skip the room-box baseline")
     ap.add_argument("--picture", default=None, help="PNG: first room, first weights vs ground truth")
     args = ap.parse_args(argv)
     weights = dict(w.split("=", 1) for w in args.weights)
@@ -215,7 +218,7 @@ def main(argv=None) -> int:
     overrides = dict(image_long_side=args.image_size, views=args.views, frustum_depth=args.frustum_depth,
                      max_room_size=tuple(args.max_room_size))
     out = Path(args.out)
-    result = evaluate_rooms(rooms, weights, overrides, out_dir=out)
+    result = evaluate_rooms(rooms, weights, overrides, out_dir=out, box=not args.no_box)
     result["settings"] = overrides
     save_json(result, out / "metrics.json")
     print(metrics_table(result))

@@ -72,9 +72,10 @@ class TrainingModule(nn.Module):
     coarse-to-fine pass with pruning at logit > 0 and voxel dropout (`VortxConfig.max_train_voxels`);
     the losses are computed here from its per-level predictions."""
 
-    def __init__(self, net: nn.Module):
+    def __init__(self, net: nn.Module, balanced_occupancy: bool = False):
         super().__init__()
         self.net = net
+        self.balanced_occupancy = balanced_occupancy
         self.last_stats: dict[str, float] = {}
 
     def forward(self, batch: TrainBatch) -> dict[str, torch.Tensor]:
@@ -92,7 +93,8 @@ class TrainingModule(nn.Module):
                 stats[f"voxels_{level}"] = 0.0
                 continue
             if level < LEVELS - 1:
-                losses[f"occ_{level}"] = L.occupancy_loss(pred.logits, pred.coords, batch.occ[level], batch.mask[level])
+                losses[f"occ_{level}"] = L.occupancy_loss(pred.logits, pred.coords, batch.occ[level], batch.mask[level],
+                                                           self.balanced_occupancy)
             else:
                 losses["tsdf"] = L.tsdf_loss(pred.logits, pred.coords, batch.tsdf, batch.mask[2])
             if pred.proj_occ_logits is not None:
@@ -265,7 +267,7 @@ class Trainer:
             torch.manual_seed(cfg.seed)  # identical initial weights on every rank
             net, _ = build_model(cfg, pretrained=pretrained)
         self.net = net.to(self.device)
-        self.module = TrainingModule(self.net)
+        self.module = TrainingModule(self.net, cfg.occ_balanced)
         self.step = 0
         self.phase_no = 0
         self.optimizer: Optional[torch.optim.Optimizer] = None

@@ -40,13 +40,21 @@ def gather_targets(coords: Tensor, grid: Tensor, mask: Tensor) -> tuple[Tensor, 
     return grid[bc, xc, yc, zc], mask[bc, xc, yc, zc] & inside
 
 
-def occupancy_loss(logits: Tensor, coords: Tensor, occ: Tensor, mask: Tensor) -> Tensor:
-    """BCE-with-logits (mean) at predicted voxels in the supervised set."""
+def occupancy_loss(logits: Tensor, coords: Tensor, occ: Tensor, mask: Tensor, balanced: bool = False) -> Tensor:
+    """BCE-with-logits (mean) at predicted voxels in the supervised set.
+
+    balanced=True weighs occupied voxels by n_empty / n_occupied (clamped to [1, 20]) - not in the
+    spec (no pos_weight there); used to stop a short training from pruning every voxel."""
     target, sup = gather_targets(coords, occ, mask)
     logits = logits.reshape(-1)
     if not bool(sup.any()):
         return _zero(logits)
-    return F.binary_cross_entropy_with_logits(logits[sup].float(), target[sup].float())
+    t = target[sup].float()
+    pos_weight = None
+    if balanced:
+        n_pos = t.sum()
+        pos_weight = ((len(t) - n_pos) / n_pos.clamp(min=1)).clamp(1.0, 20.0).detach()
+    return F.binary_cross_entropy_with_logits(logits[sup].float(), t, pos_weight=pos_weight)
 
 
 def tsdf_loss(logits: Tensor, coords: Tensor, tsdf: Tensor, mask: Tensor) -> Tensor:
