@@ -39,6 +39,8 @@ class VortxConfig:
                         Ignored when fusion == "average".
     voxel_dropout:      in training, keep at most `max_train_voxels` random voxels per sample after
                         upsampling (medium, fine), as the authors do to bound memory.
+    image_long_side:    long side in pixels of the photos the network was trained on; reconstruction
+                        resizes photos to it unless told otherwise (official: 640 x 480).
     """
 
     backbone: str = "efficientnet_lite0"
@@ -51,6 +53,7 @@ class VortxConfig:
     use_proj_occ: bool = True
     voxel_dropout: bool = True
     max_train_voxels: tuple[int, int] = (2**14, 2**16)
+    image_long_side: int = 640
 
     def __post_init__(self) -> None:
         # Lists arrive from JSON; store tuples so the config stays hashable and comparable.

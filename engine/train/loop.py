@@ -46,7 +46,8 @@ def build_model(cfg: TrainConfig, pretrained: bool = True):
     from ..model.config import VortxConfig
     from ..model.vortx import VortxNet
 
-    mcfg = VortxConfig.from_dict(dict(cfg.model))
+    # The weights remember their training resolution so reconstruction feeds photos at that size.
+    mcfg = VortxConfig.from_dict({"image_long_side": max(cfg.image_size), **cfg.model})
     net = VortxNet(mcfg, pretrained_backbone=pretrained)
     return net, mcfg
 
