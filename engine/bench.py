@@ -29,19 +29,25 @@ MB = 2**20
 @dataclass(frozen=True)
 class Case:
     name: str
-    room: tuple[float, float, float]  # metres; the scene bounds are clipped to the room
+    region: tuple[float, float, float]  # metres reconstructed: the scene bounds are clipped to this
     views: int  # N, keyframes per tile
-    frames: int  # generated frames (all become keyframes: the circle's steps exceed 0.1 m / 15 deg)
+    frames: int  # generated frames; all are keyframes (steps of >= 0.118 m on the camera circle)
 
 
 FULL_CASES = (
-    Case("N=20, 2 m room", (2.0, 2.0, 2.5), 20, 64),
-    Case("N=40, 2 m room", (2.0, 2.0, 2.5), 40, 64),
-    Case("N=60, 2 m room", (2.0, 2.0, 2.5), 60, 64),
-    Case("N=20, 1.5 m room", (1.5, 1.5, 2.5), 20, 40),
-    Case("N=20, 3 m room", (3.0, 3.0, 2.5), 20, 40),
+    Case("N=20, 2 m region", (2.0, 2.0, 2.5), 20, 64),
+    Case("N=40, 2 m region", (2.0, 2.0, 2.5), 40, 64),
+    Case("N=60, 2 m region", (2.0, 2.0, 2.5), 60, 64),
+    Case("N=20, 1.5 m region", (1.5, 1.5, 2.5), 20, 32),
+    Case("N=20, 3 m region", (3.0, 3.0, 2.5), 20, 32),
 )
-QUICK_CASES = (Case("N=20, 1.5 m room", (1.5, 1.5, 2.5), 20, 24),)
+QUICK_CASES = (Case("N=20, 1.5 m region", (1.5, 1.5, 2.5), 20, 24),)
+# Every capture is the same 4 x 4 x 2.5 m box room seen from a 1.2 m circle, looking in across the
+# middle (20 deg off the centre), so every camera sees the reconstructed region around the centre;
+# 64 frames on the circle are 0.118 m apart, so all are keyframes (> 0.1 m) and a tile can have 60 views.
+RENDER_ROOM = (4.0, 4.0, 2.5)
+CAMERA_RADIUS = 1.2
+CAMERA_OUTWARD_DEG = -70.0
 FULL_SPARSE = ({"grid": (96, 96, 48), "channels": 32}, {"grid": (96, 96, 48), "channels": 16, "occupancy": 0.1})
 QUICK_SPARSE = ({"grid": (48, 48, 24), "channels": 16, "repeats": 1},)
 IMAGE_SIZE = (320, 240)
@@ -86,30 +92,32 @@ def run_case(case: Case, device: str, workdir: Path) -> dict[str, Any]:
     from .recon.memory_estimate import estimate_memory
     from .recon.synthetic import make_synthetic_capture
 
-    capture_dir = workdir / f"room_{case.room[0]:g}x{case.room[1]:g}_{case.frames}"
+    capture_dir = workdir / f"room_{case.frames}_frames"
     if not capture_dir.exists():
-        make_synthetic_capture(capture_dir, room_size=case.room, frames=case.frames, image_size=IMAGE_SIZE)
+        make_synthetic_capture(capture_dir, room_size=RENDER_ROOM, frames=case.frames, image_size=IMAGE_SIZE,
+                               radius=CAMERA_RADIUS, outward_deg=CAMERA_OUTWARD_DEG)
     from .capture import load_capture
 
     capture = load_capture(capture_dir)
     settings = ReconSettings(weights="random", views=case.views, device=device, image_long_side=max(IMAGE_SIZE),
-                             max_room_size=case.room)
+                             max_room_size=case.region)
     result = reconstruct(capture, settings)
     stats = result.stats
     levels = stats["levels"]
     memory = stats["memory"]
     voxels = tuple(lv["voxels"] for lv in levels) + (0,) * (3 - len(levels))
-    estimate = estimate_memory(voxels, stats["keyframes"], tuple(stats["image_size"]), case.views,
+    views_used = max(stats["tiles"]["views_per_tile"])
+    estimate = estimate_memory(voxels, stats["keyframes"], tuple(stats["image_size"]), views_used,
                                settings.fusion_chunk, settings.fp16_features, baseline=memory["start_rss_bytes"] or 0)
     total = stats["timings_s"]["total"]
     return {
         "case": case.name,
-        "room_m": list(case.room),
+        "region_m": list(case.region),
         "views": case.views,
         "frames": case.frames,
         "keyframes": stats["keyframes"],
         "tiles": stats["tiles"]["count"],
-        "views_per_tile_max": max(stats["tiles"]["views_per_tile"]),
+        "views_per_tile_max": views_used,
         "voxels": [lv["voxels"] for lv in levels],
         "occupied": [lv["occupied"] for lv in levels],
         "mesh_faces": stats.get("mesh", {}).get("faces", 0),
@@ -152,13 +160,13 @@ def markdown(report: dict[str, Any]) -> str:
         f"Machine: {m['cpu']}, {m['logical_cores']} logical cores, torch {m['torch']} ({m['torch_threads']} threads)"
         + (f", load average {m.get('load_average_at_start')} at start" if m.get("load_average_at_start") else ""),
         "",
-        "| case | keyframes | voxels 16/8/4 cm | features s | fusion s | 3D CNN s | mesh + colour s | total s (CPU s) | keyframes/s | peak RSS MB (estimate) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| case | keyframes | max views/tile | voxels 16/8/4 cm | features s | fusion s | 3D CNN s | mesh + colour s | total s (CPU s) | keyframes/s | peak RSS MB (estimate) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in report["runs"]:
         t, c = r["timings_s"], r["cpu_timings_s"]
         lines.append(
-            f"| {r['case']} | {r['keyframes']} | {' / '.join(str(v) for v in r['voxels'])} | {t.get('features', 0):.1f} "
+            f"| {r['case']} | {r['keyframes']} | {r['views_per_tile_max']} | {' / '.join(str(v) for v in r['voxels'])} | {t.get('features', 0):.1f} "
             f"| {stage_sum(t, 'fusion'):.1f} | {stage_sum(t, '3D CNN'):.1f} | {t.get('mesh', 0) + t.get('colour', 0):.1f} "
             f"| {t['total']:.1f} ({c['total']:.1f}) | {r['keyframes_per_s']:.2f} "
             f"| {r['peak_rss_bytes'] / MB:.0f} ({r['estimated_peak_bytes'] / MB:.0f}) |"

@@ -32,7 +32,7 @@ def test_voxel_models():
 
 
 def test_report_table_and_projection():
-    run = {"case": "N=20, 1 m room", "keyframes": 12, "voxels": [100, 400, 1600], "occupied": [50, 200, 900],
+    run = {"case": "N=20, 1 m room", "keyframes": 12, "views_per_tile_max": 9, "voxels": [100, 400, 1600], "occupied": [50, 200, 900],
            "timings_s": {"features": 1.0, "fusion 16 cm": 0.5, "fusion 8 cm": 0.25, "3D CNN 16 cm": 2.0, "mesh": 0.1,
                          "colour": 0.2, "total": 4.0},
            "cpu_timings_s": {"total": 3.0}, "keyframes_per_s": 3.0, "peak_rss_bytes": 700 * 2**20,
@@ -43,5 +43,5 @@ def test_report_table_and_projection():
     sparse = {"grid": (8, 8, 8), "channels": 4, "pattern": "surface", "voxels": 10, "kernel_map_s": 0.1,
               "sparse_forward_s": 0.2, "dense_forward_s": 0.4, "speedup_forward": 2.0, "speedup_forward_backward": 1.5}
     table = markdown({"machine": machine_info(), "runs": [run], "sparse_vs_dense": [sparse], "projected_memory": projection})
-    assert "| N=20, 1 m room | 12 | 100 / 400 / 1600 | 1.0 | 0.8 | 2.0 | 0.3 | 4.0 (3.0) | 3.00 | 700 (650) |" in table
+    assert "| N=20, 1 m room | 12 | 9 | 100 / 400 / 1600 | 1.0 | 0.8 | 2.0 | 0.3 | 4.0 (3.0) | 3.00 | 700 (650) |" in table
     assert "| 8x8x8, 4 ch, surface | 10 |" in table and "GiB" in table

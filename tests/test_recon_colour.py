@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from engine.mesh_io import Mesh
 from engine.recon.colour import UNSEEN_GREY, ColourView, colour_vertices, render_depth
@@ -23,10 +24,6 @@ def wall(x: float, half: float, n: int) -> tuple[np.ndarray, np.ndarray]:
     return vertices, faces
 
 
-def solid(rgb: tuple[float, float, float]) -> np.ndarray:
-    return np.tile(np.array(rgb, dtype=np.uint8)[None, None], (SIZE[1], SIZE[0], 1))
-
-
 def test_render_depth_is_planar_depth_without_holes():
     vertices, faces = wall(2.0, 0.5, 9)
     camera = look_pose(np.zeros(3), np.array([1.0, 0, 0]))
@@ -44,7 +41,8 @@ def test_render_depth_is_planar_depth_without_holes():
     assert np.isfinite(row).all() and np.all(np.diff(row) < 0)
 
 
-def test_a_vertex_hidden_by_a_wall_does_not_take_that_views_colour():
+@pytest.mark.parametrize("pixels", [100, 320])  # 320: the occlusion z-buffer is rendered at fewer pixels
+def test_a_vertex_hidden_by_a_wall_does_not_take_that_views_colour(pixels):
     far_v, far_f = wall(3.0, 2.0, 41)  # 10 cm spacing
     near_v, near_f = wall(1.5, 0.3, 7)  # occluder in front of the far wall's centre, as seen from A
     vertices = np.concatenate([far_v, near_v]).astype(np.float32)
@@ -52,8 +50,13 @@ def test_a_vertex_hidden_by_a_wall_does_not_take_that_views_colour():
     normals = np.tile(np.array([[-1.0, 0.0, 0.0]], np.float32), (len(vertices), 1))
     mesh = Mesh(vertices, faces, normals)
 
-    view_a = ColourView(solid((0, 255, 0)), K, look_pose(np.zeros(3), np.array([1.0, 0, 0])))  # green, behind the occluder
-    view_b = ColourView(solid((255, 0, 0)), K, look_pose(np.array([2.0, 0, 0]), np.array([1.0, 0, 0])))  # red, past it
+    k = np.diag([pixels / 100, pixels / 100, 1.0]) @ K  # same field of view at any size
+
+    def solid(rgb: tuple[int, int, int]) -> np.ndarray:
+        return np.tile(np.array(rgb, dtype=np.uint8)[None, None], (pixels, pixels, 1))
+
+    view_a = ColourView(solid((0, 255, 0)), k, look_pose(np.zeros(3), np.array([1.0, 0, 0])))  # green, behind the occluder
+    view_b = ColourView(solid((255, 0, 0)), k, look_pose(np.array([2.0, 0, 0]), np.array([1.0, 0, 0])))  # red, past it
     colours = colour_vertices(mesh, [view_a, view_b], tolerance=0.08)
 
     far, near = colours[: len(far_v)], colours[len(far_v):]

@@ -22,6 +22,7 @@ UNSEEN_GREY = 0.5
 NEAR_PLANE = 0.05  # metres; triangles closer than this to a camera are not rendered
 MIN_COSINE = 0.1  # views at more than ~84 deg from the normal are too grazing to trust
 MAX_EDGE_SAMPLES = 64  # caps the samples of a huge (very close) triangle to 65 x 66 / 2
+DEPTH_LONG_SIDE = 160  # occlusion z-buffer resolution (long side, pixels)
 SAMPLES_PER_CALL = 4_000_000  # bounds the (triangles, samples, 3) buffer to ~100 MB
 
 
@@ -74,7 +75,9 @@ def render_depth(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, pose: n
         per_call = max(1, SAMPLES_PER_CALL // len(bary))
         for a in range(0, len(group), per_call):
             corners = cam[group[a:a + per_call]]  # (t, 3, 3)
-            points = np.einsum("sk,tkd->tsd", bary, corners).reshape(-1, 3)
+            # Three broadcast multiply-adds: several times faster than einsum for these shapes.
+            points = (bary[None, :, 0, None] * corners[:, None, 0] + bary[None, :, 1, None] * corners[:, None, 1]
+                      + bary[None, :, 2, None] * corners[:, None, 2]).reshape(-1, 3)
             pu, pv = _project(points, K)
             col, row = np.floor(pu).astype(np.int64), np.floor(pv).astype(np.int64)
             inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
@@ -103,14 +106,17 @@ def visible_vertices(
 
     Seen = in front, inside the image, facing the camera (cos > MIN_COSINE, needs normals pointing to
     free space) and no farther than `tolerance` + 2 % of the depth behind the rendered surface.
+    `depth` may have fewer pixels than `view.image` (same field of view); u, v are image pixels.
     """
-    h, w = depth.shape
+    h, w = view.image.shape[:2]
+    dh, dw = depth.shape
     cam = to_camera(mesh.vertices, view.pose)
     z = cam[:, 2]
     ids = np.flatnonzero(z > NEAR_PLANE)
     u, v = _project(cam[ids], view.K)
-    col, row = np.floor(u).astype(np.int64), np.floor(v).astype(np.int64)
-    inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    col = np.minimum(np.floor(u * (dw / w)).astype(np.int64), dw - 1)
+    row = np.minimum(np.floor(v * (dh / h)).astype(np.int64), dh - 1)
     ids, u, v, col, row = ids[inside], u[inside], v[inside], col[inside], row[inside]
     to_camera_dir = view.pose[:3, 3] - mesh.vertices[ids].astype(np.float64)
     to_camera_dir /= np.linalg.norm(to_camera_dir, axis=1, keepdims=True)
@@ -131,7 +137,12 @@ def colour_vertices(mesh: Mesh, views: list[ColourView], tolerance: float) -> np
     weight = np.zeros(n, dtype=np.float64)
     for view in views:
         h, w = view.image.shape[:2]
-        depth = render_depth(mesh.vertices, mesh.faces, view.K, view.pose, (w, h))
+        # Occlusion is resolved at <= DEPTH_LONG_SIDE pixels: about 2 cm per pixel at 3 m, finer than
+        # the tolerance, at a quarter of the rasterisation cost of a 320-pixel image.
+        scale = min(1.0, DEPTH_LONG_SIDE / max(w, h))
+        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        K_depth = np.diag([size[0] / w, size[1] / h, 1.0]) @ view.K
+        depth = render_depth(mesh.vertices, mesh.faces, K_depth, view.pose, size)
         ids, u, v, cosine = visible_vertices(mesh, view, depth, tolerance)
         total[ids] += cosine[:, None] * _bilinear(view.image, u, v)
         weight[ids] += cosine

@@ -17,7 +17,10 @@ import numpy as np
 import torch
 
 from ..capture import Capture
+from ..errors import VortxError
 from ..jobs import CancelToken, ProgressCallback, check, report
+from ..mesh_io import Mesh
+from ..model.outputs import tsdf_from_logits
 from .colour import ColourView, colour_vertices
 from .features import FeatureCache, encode_keyframes, keyframe_image_size
 from .fusion import fuse_tile
@@ -83,8 +86,6 @@ def reconstruct(
 
 
 def resolve_device(name: str) -> torch.device:
-    from ..errors import VortxError
-
     device = torch.device(name)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise VortxError("device 'cuda' was requested but this PyTorch has no usable CUDA GPU; use --device cpu")
@@ -168,8 +169,6 @@ def _run_planned(
 
     report(progress, "mesh", 0, 1)
     with timer.stage("mesh"):
-        from ..model.outputs import tsdf_from_logits
-
         tsdf = tsdf_from_logits(final.logits.reshape(-1).float()).cpu().numpy()
         mesh = extract_mesh(final.coords[:, 1:].cpu().numpy(), tsdf, grid.origin, settings.voxel_size)
     report(progress, "mesh", 1, 1)
@@ -183,68 +182,107 @@ def _run_planned(
     return ReconResult(mesh, plan.tiles, stats, None)
 
 
-def _run_levels(model, plan: ReconPlan, settings: ReconSettings, cache: FeatureCache, device: torch.device,
-                timer: StageTimer, stats: dict[str, Any], progress, cancel):
-    """Fuse tile by tile, then one 3D CNN over the scene, per level. -> (fine LevelOutput, None) or
-    (None, message) when pruning leaves nothing."""
-    grid = plan.grid
-    active = plan.active_tiles
-    tile_index = {id(t): i for i, t in enumerate(plan.tiles)}
+def _coarse_coords(plan: ReconPlan) -> torch.Tensor:
+    """(N, 4) [batch 0, x, y, z] every coarse voxel of the active tiles inside the scene bounds.
+
+    The official code fuses whole tiles, but the padding past the bounds lies beyond every camera's
+    frustum depth (or outside the clipped room) and would only cost time.
+    """
+    blocks = [plan.grid.level_indices(t, LEVEL_SCALES[0], within=plan.bounds) for t in plan.active_tiles]
+    indices = np.concatenate(blocks)
+    return torch.as_tensor(np.concatenate([np.zeros((len(indices), 1), np.int64), indices], axis=1))
+
+
+def _fuse_level(
+    model: torch.nn.Module,
+    level: int,
+    coords: torch.Tensor,
+    plan: ReconPlan,
+    cache: FeatureCache,
+    settings: ReconSettings,
+    device: torch.device,
+    progress: Optional[ProgressCallback],
+    cancel: Optional[CancelToken],
+) -> torch.Tensor:
+    """Fused features (N, C_level) on the CPU, row-aligned with `coords` (N, 4), tile by tile.
+
+    Voxels are re-split by tile at every level; children stay in their parent's tile because tiles
+    align with the coarse grid. Tile states and per-tile voxel counts are updated as tiles finish.
+    """
+    scale = LEVEL_SCALES[level]
+    voxel = settings.voxel_size * scale
+    label = level_label(voxel)
+    stage = f"fusion {label}"
+    owner = plan.grid.tile_ids(coords[:, 1:].cpu().numpy(), scale)
+    order = np.argsort(owner, kind="stable")
+    starts = np.searchsorted(owner[order], np.arange(len(plan.tiles) + 1))
+    points = torch.as_tensor(plan.grid.origin, dtype=torch.float32) + coords[:, 1:].cpu().float() * voxel
+    fused = torch.zeros((len(coords), model.config.feature_channels[level]), dtype=torch.float32)
+    active = [t for t, tile in enumerate(plan.tiles) if len(tile.views)]
+    last_level = level == len(LEVEL_SCALES) - 1
+    for done, t in enumerate(active):
+        check(cancel)
+        report(progress, stage, done, len(active))
+        tile = plan.tiles[t]
+        rows = torch.as_tensor(order[starts[t]:starts[t + 1]])
+        tile.voxels[label] = int(len(rows))
+        if len(rows) == 0:
+            tile.state = TileState.EMPTY  # everything in it was pruned at the level above
+            continue
+        tile.state = TileState.RUNNING
+        fused[rows] = fuse_tile(model, level, points[rows], cache, tile.views, device, settings.fusion_chunk, cancel)
+        tile.state = TileState.DONE if last_level else TileState.PENDING
+    report(progress, stage, len(active), len(active))
+    return fused
+
+
+def _run_levels(
+    model: torch.nn.Module,
+    plan: ReconPlan,
+    settings: ReconSettings,
+    cache: FeatureCache,
+    device: torch.device,
+    timer: StageTimer,
+    stats: dict[str, Any],
+    progress: Optional[ProgressCallback],
+    cancel: Optional[CancelToken],
+) -> tuple[Optional[Any], Optional[str]]:
+    """Per level: fuse tile by tile, then ONE 3D CNN over all tiles' voxels (no seams), prune and
+    upsample. -> (fine LevelOutput, None), or (None, message) when pruning leaves nothing."""
+    coords = _coarse_coords(plan)
     previous = None
-    # The coarse level starts from every coarse voxel of the active tiles inside the scene bounds:
-    # the official code fuses whole tiles, but the padding past the bounds is beyond every camera's
-    # 4 m frustum (or outside the clipped room) and would only cost time.
-    coords = torch.as_tensor(np.concatenate([
-        np.concatenate([np.zeros((len(idx), 1), np.int64), idx], axis=1)
-        for idx in (grid.level_indices(t, LEVEL_SCALES[0], within=plan.bounds) for t in active)
-    ]))
     for level, scale in enumerate(LEVEL_SCALES):
         voxel = settings.voxel_size * scale
         label = level_label(voxel)
-        fuse_stage, cnn_stage = f"fusion {label}", f"3D CNN {label}"
-        # Re-split by tile: children stay in their parent's tile because tiles align with the coarse grid.
-        owner = grid.tile_ids(coords[:, 1:].cpu().numpy(), scale)
-        order = np.argsort(owner, kind="stable")
-        bounds = np.searchsorted(owner[order], np.arange(len(plan.tiles) + 1))
-        points_all = torch.as_tensor(grid.origin, dtype=torch.float32) + coords[:, 1:].cpu().float() * voxel
-        fused = None
-        with timer.stage(fuse_stage):
-            for done, tile in enumerate(active):
-                check(cancel)
-                report(progress, fuse_stage, done, len(active))
-                t = tile_index[id(tile)]
-                rows = torch.as_tensor(order[bounds[t]:bounds[t + 1]])
-                tile.voxels[label] = int(len(rows))
-                if len(rows) == 0:
-                    tile.state = TileState.EMPTY
-                    continue
-                tile.state = TileState.RUNNING
-                features = fuse_tile(model, level, points_all[rows], cache, tile.views, device, settings.fusion_chunk, cancel)
-                if fused is None:
-                    fused = torch.zeros((len(coords), features.shape[1]), dtype=torch.float32)
-                fused[rows] = features
-                tile.state = TileState.PENDING if level < len(LEVEL_SCALES) - 1 else TileState.DONE
-            report(progress, fuse_stage, len(active), len(active))
+        with timer.stage(f"fusion {label}"):
+            fused = _fuse_level(model, level, coords, plan, cache, settings, device, progress, cancel)
         check(cancel)
+        cnn_stage = f"3D CNN {label}"
         report(progress, cnn_stage, 0, 1)
         with timer.stage(cnn_stage), torch.inference_mode():
             out = model.level_step(level, coords.to(device), fused.to(device), previous)
-        report(progress, cnn_stage, 1, 1)
-        logits = out.logits.reshape(-1)
-        level_stats = {"label": label, "voxel_size": voxel, "voxels": int(len(coords)),
-                       "occupied": int((logits > 0).sum())}
-        stats["levels"].append(level_stats)
-        if level == len(LEVEL_SCALES) - 1:
-            return out, None
-        with timer.stage(cnn_stage), torch.inference_mode():
+            del fused
+            occupied = int((out.logits.reshape(-1) > 0).sum())
+            stats["levels"].append({"label": label, "voxel_size": voxel, "voxels": int(len(coords)), "occupied": occupied})
+            if level == len(LEVEL_SCALES) - 1:
+                report(progress, cnn_stage, 1, 1)
+                return out, None
             previous = model.prune_and_upsample(out)
+            del out
+        report(progress, cnn_stage, 1, 1)
         if len(previous.coords) == 0:
             return None, empty_scene_message(label)
         coords = previous.coords
-    raise AssertionError("unreachable")
+    raise AssertionError("unreachable: the loop returns at the fine level")
 
 
-def colour_mesh(mesh, plan: ReconPlan, settings: ReconSettings, progress, cancel) -> np.ndarray:
+def colour_mesh(
+    mesh: Mesh,
+    plan: ReconPlan,
+    settings: ReconSettings,
+    progress: Optional[ProgressCallback],
+    cancel: Optional[CancelToken],
+) -> np.ndarray:
     """Vertex colours (V, 3) float32 from up to `settings.colour_views` evenly spaced keyframes."""
     if not settings.colour or settings.colour_views < 1:
         return np.full((len(mesh.vertices), 3), 0.5, np.float32)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from ..capture import Frame
+from ..capture import Frame, load_image
 
 SIZE_MULTIPLE = 16
 
@@ -36,8 +36,6 @@ def load_resized(frame: Frame, size: tuple[int, int]) -> np.ndarray:
     Downscaling uses area averaging: it is the right low-pass filter before sampling colours at
     vertex spacing, and for the CNN it matches how a camera with fewer pixels would see the scene.
     """
-    from ..capture import load_image  # lands with the capture loaders; imported late to keep this module light
-
     image = load_image(frame.image_path)
     if image.shape[1] == size[0] and image.shape[0] == size[1]:
         return image

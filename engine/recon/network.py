@@ -1,7 +1,8 @@
 """Which network a reconstruction runs: the default weights, a weights file, or a seeded random init.
 
 "random" exists so the whole pipeline runs end to end before trained weights do (tests, benchmark);
-its meshes are meaningless. The default weights' location is owned by engine.model.weights.
+its meshes are meaningless. The default weights' location is owned by engine.model.weights
+(DEFAULT_WEIGHTS), read at call time so there is one place that defines it.
 """
 
 from __future__ import annotations
@@ -12,26 +13,20 @@ from typing import Optional
 import torch
 
 from ..errors import WeightsError
+from ..model import weights as model_weights
+from ..model.config import VortxConfig
+from ..model.vortx import VortxNet
 
 RANDOM = "random"
 
 
-def default_weights_path() -> Optional[Path]:
-    """engine.model.weights.DEFAULT_WEIGHTS, or None while that package defines no default."""
-    from ..model import weights
+def load_network(weights: Optional[str], seed: int, device: torch.device) -> tuple[VortxNet, VortxConfig, str]:
+    """-> (VortxNet in eval mode on `device`, its VortxConfig, a label for the sidecar).
 
-    value = getattr(weights, "DEFAULT_WEIGHTS", None)
-    return None if value is None else Path(value)
-
-
-def load_network(weights: Optional[str], seed: int, device: torch.device):
-    """-> (VortxNet in eval mode on `device`, VortxConfig, a label for the sidecar)."""
-    from ..model.config import VortxConfig
-    from ..model.weights import load_weights
-
+    weights: None = the default weights, "random" = VortxNet(VortxConfig()) initialised from `seed`,
+    else a .safetensors path. Raises WeightsError naming the file and what to do.
+    """
     if weights == RANDOM:
-        from ..model.vortx import VortxNet
-
         # fork_rng: seeding here must not change the caller's global random stream.
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed(seed)
@@ -39,15 +34,14 @@ def load_network(weights: Optional[str], seed: int, device: torch.device):
             model = VortxNet(config)
         return model.to(device).eval(), config, f"random (seed {seed})"
     if weights is None:
-        path = default_weights_path()
-        if path is None or not path.is_file():
-            where = f" (expected at {path})" if path is not None else ""
+        path = Path(model_weights.DEFAULT_WEIGHTS)
+        if not path.is_file():
             raise WeightsError(
-                f"the default VoRTX weights are not installed{where}. Pass a weights file "
+                f"the default VoRTX weights are not installed (expected at {path}). Pass a weights file "
                 "(--weights PATH.safetensors), convert the official checkpoint with "
                 "`python -m engine convert-official`, or use --weights random to test the pipeline"
             )
     else:
         path = Path(weights)
-    model, config = load_weights(path, device)
+    model, config = model_weights.load_weights(path, device)
     return model, config, str(path)

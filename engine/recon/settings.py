@@ -7,7 +7,7 @@ knobs (chunk sizes, colour views, room clipping) bound memory and time on a lapt
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from typing import Any, Optional
 
 from ..errors import VortxError
@@ -50,7 +50,6 @@ class ReconSettings:
     fp16_features: bool = True  # cache 2D features as fp16 on the CPU (halves the cache; official does this)
     colour: bool = True  # colour the vertices from the photos
     colour_views: int = 40  # keyframes (evenly spaced) used for vertex colours
-    extra: dict[str, Any] = field(default_factory=dict)  # free-form notes carried into the sidecar
 
     @property
     def level_voxel_sizes(self) -> tuple[float, float, float]:

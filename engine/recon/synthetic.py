@@ -38,7 +38,8 @@ def intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
 
 def circle_poses(frames: int, centre: np.ndarray, radius: float, pitch_deg: float = -10.0, outward_deg: float = 60.0) -> np.ndarray:
     """(frames, 4, 4) cameras on a horizontal circle, looking `outward_deg` away from the tangent
-    (90 = straight at the walls) and tilted down by -pitch_deg, as a person scanning a room walks."""
+    (90 = straight out at the walls, -90 = straight in at the centre) and tilted down by -pitch_deg,
+    as a person scanning a room walks."""
     poses = []
     for i in range(frames):
         angle = 2 * np.pi * i / frames
@@ -84,10 +85,11 @@ def make_synthetic_capture(
     radius: float = 0.8,
     height: float = 1.5,
     seed: int = 0,
+    outward_deg: float = 60.0,
 ) -> Capture:
     """Render `frames` views into `directory` in the ScanNet layout that `load_capture` reads
     (color/<i>.png, pose/<i>.txt camera-to-world, intrinsic/intrinsic_color.txt) and return the
-    posed, metric Capture."""
+    posed, metric Capture. outward_deg: see `circle_poses` (negative looks inward, across the room)."""
     directory = Path(directory)
     for sub in ("color", "pose", "intrinsic"):
         (directory / sub).mkdir(parents=True, exist_ok=True)
@@ -96,7 +98,7 @@ def make_synthetic_capture(
     K4 = np.eye(4)
     K4[:3, :3] = K
     np.savetxt(directory / "intrinsic" / "intrinsic_color.txt", K4)
-    poses = circle_poses(frames, np.array([room[0] / 2, room[1] / 2, height]), radius)
+    poses = circle_poses(frames, np.array([room[0] / 2, room[1] / 2, height]), radius, outward_deg=outward_deg)
     out = []
     for i, pose in enumerate(poses):
         image, _ = render_box_room(K, pose, image_size, room, seed)
