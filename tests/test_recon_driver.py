@@ -58,6 +58,7 @@ def test_cli_writes_a_ply_and_a_consistent_sidecar(cli_runs, capture_dir):
     np.testing.assert_allclose(np.linalg.norm(mesh.normals, axis=1), 1.0, atol=1e-3)
     assert side["capture"] == str(capture_dir.resolve()) and side["settings"]["voxel_size"] == 0.16
     assert side["model"]["weights"] == "random (seed 0)" and side["message"] is None
+    assert side["image_size"] == [160, 128]  # --image-size 160 for 160 x 120 photos, sides multiples of 16
 
     levels = side["levels"]
     assert [lv["label"] for lv in levels] == ["64 cm", "32 cm", "16 cm"]
@@ -137,3 +138,19 @@ def test_cancel_stops_between_tiles(capture_dir):
 
     with pytest.raises(Cancelled):
         reconstruct(load_capture(capture_dir), ReconSettings(**TINY_SETTINGS), progress=progress, cancel=token)
+
+
+def test_default_weights_set_the_image_size_and_other_voxel_sizes_warn(capture_dir):
+    from engine.model.weights import DEFAULT_WEIGHTS, read_config
+
+    if not DEFAULT_WEIGHTS.is_file():
+        pytest.skip(f"no default weights at {DEFAULT_WEIGHTS}")
+    trained = read_config(DEFAULT_WEIGHTS)
+    settings = ReconSettings(**{**TINY_SETTINGS, "weights": None, "image_long_side": None})
+    result = reconstruct(load_capture(capture_dir), settings)
+    assert result.stats["model"]["weights"] == str(DEFAULT_WEIGHTS)
+    # 160 x 120 photos go to the network at the weights' training size (long side, multiples of 16).
+    long_side = trained.image_long_side
+    assert max(result.stats["image_size"]) == 16 * round(long_side / 16)
+    assert any("trained with 4 cm voxels; 16 cm" in w for w in result.warnings)
+    assert result.stats["warnings"] == result.warnings

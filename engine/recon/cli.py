@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default=defaults.device, help="cpu or cuda (default %(default)s)")
     parser.add_argument("--seed", type=int, default=defaults.seed, help="view sampling / random weights seed (default %(default)s)")
     parser.add_argument("--image-size", type=int, default=defaults.image_long_side,
-                        help="long side in pixels the photos are resized to for the network (default %(default)s)")
+                        help="long side in pixels the photos are resized to for the network "
+                             "(default: the size the weights were trained at)")
     parser.add_argument("--colour-views", type=int, default=defaults.colour_views,
                         help="keyframes used for vertex colours, 0 = grey mesh (default %(default)s)")
     parser.add_argument("--max-room-size", type=float, nargs=3, metavar=("X", "Y", "Z"), default=list(defaults.max_room_size),

@@ -33,7 +33,7 @@ from .result import ReconResult, empty_mesh
 from .settings import LEVEL_SCALES, ReconSettings, level_label
 from .tiles import TileState
 
-COLOUR_LONG_SIDE = 320  # colour and occlusion are resolved at this image size (vertices are 4 cm apart)
+COLOUR_LONG_SIDE = 320  # photos are sampled for colour at (at most) this size: vertices are 4 cm apart
 
 
 class StageTimer:
@@ -102,7 +102,8 @@ def run_reconstruction(
     plan: Optional[ReconPlan] = None,
     model_info: Optional[dict[str, Any]] = None,
 ) -> ReconResult:
-    """The pipeline with a ready model (any object with the engine.model inference API)."""
+    """The pipeline with a ready model: a VortxNet, or any object with its inference API
+    (encode_views, fuse, level_step, prune_and_upsample) and a `config` (VortxConfig)."""
     timer = StageTimer()
     started, cpu_started = time.perf_counter(), time.process_time()
     stats: dict[str, Any] = {
@@ -111,6 +112,7 @@ def run_reconstruction(
         "device": str(device),
         "torch": torch.__version__,
         "frames": len(capture.frames),
+        "warnings": [],  # this run's own warnings; the plan's are put first below
     }
     with PeakMemory(device) as memory:
         with timer.stage("keyframes"):
@@ -120,8 +122,8 @@ def run_reconstruction(
     stats["cpu_timings_s"] = {**{k: round(v, 4) for k, v in timer.cpu_seconds.items()},
                               "total": round(time.process_time() - cpu_started, 4)}
     stats["memory"] = memory.to_dict()
-    stats["warnings"] = list(plan.warnings)
-    result.warnings = list(plan.warnings)
+    stats["warnings"] = list(plan.warnings) + stats["warnings"]
+    result.warnings = list(stats["warnings"])
     stats["message"] = result.message
     stats["tiles"]["states"] = {s.value: sum(t.state is s for t in plan.tiles) for s in TileState}
     return result
@@ -139,7 +141,13 @@ def _run_planned(
 ) -> ReconResult:
     grid = plan.grid
     active = plan.active_tiles
-    image_size = keyframe_image_size(plan.keyframes, settings.image_long_side)
+    config = model.config
+    image_size = keyframe_image_size(plan.keyframes, settings.image_long_side or config.image_long_side)
+    if abs(settings.voxel_size - config.voxel_size) > 1e-9:
+        stats["warnings"].append(
+            f"the weights were trained with {level_label(config.voxel_size)} voxels; {level_label(settings.voxel_size)} "
+            "shows the network the scene at another scale, so expect a worse mesh"
+        )
     stats.update({
         "keyframes": len(plan.keyframes),
         "keyframe_ids": list(plan.keyframe_ids),
@@ -293,7 +301,7 @@ def colour_mesh(
         check(cancel)
         report(progress, "colour", done, len(picks) + 1)
         frame = plan.keyframes[k]
-        size = resized_size(frame.width, frame.height, min(COLOUR_LONG_SIDE, settings.image_long_side))
+        size = resized_size(frame.width, frame.height, min(COLOUR_LONG_SIDE, max(frame.width, frame.height)))
         K = scale_intrinsics(plan.Ks[k], (frame.width, frame.height), size)
         views.append(ColourView(load_resized(frame, size), K, plan.poses[k]))
     colours = colour_vertices(mesh, views, tolerance=2 * settings.voxel_size)

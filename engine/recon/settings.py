@@ -44,7 +44,9 @@ class ReconSettings:
     # Bounds larger than this (metres, x/y/z) are clipped around the median camera centre, so one
     # bad pose or a camera looking down a corridor cannot blow the voxel grid up to city size.
     max_room_size: tuple[float, float, float] = (20.0, 20.0, 6.0)
-    image_long_side: int = 640  # images are resized to this long side before the 2D CNN (trained at 640x480)
+    # Long side in pixels the photos are resized to for the 2D CNN; None = the size the weights were
+    # trained at (VortxConfig.image_long_side: 640 for the official model).
+    image_long_side: Optional[int] = None
     feature_chunk: int = 4  # images per 2D CNN call (measured fastest on CPU, platform-notes section 4)
     fusion_chunk: int = 2048  # voxels per fusion call: fusion memory is O(chunk x views^2)
     fp16_features: bool = True  # cache 2D features as fp16 on the CPU (halves the cache; official does this)
@@ -68,7 +70,7 @@ class ReconSettings:
                 raise VortxError(f"{name.replace('_', ' ')} must be a positive multiple of {COARSE_FACTOR} voxels, got {value}")
         if self.device not in ("cpu", "cuda") and not self.device.startswith("cuda:"):
             raise VortxError(f"device must be 'cpu' or 'cuda', got {self.device!r}")
-        if self.image_long_side < 32:
+        if self.image_long_side is not None and self.image_long_side < 32:
             raise VortxError(f"image long side must be at least 32 pixels, got {self.image_long_side}")
         if self.feature_chunk < 1 or self.fusion_chunk < 1:
             raise VortxError("feature and fusion chunk sizes must be at least 1")
