@@ -22,7 +22,7 @@ def test_defaults_and_units(blender, empty_scene) -> None:
     assert set(rna["sfm_matcher"].enum_items.keys()) == {"AUTO", "SEQUENTIAL", "EXHAUSTIVE"}
     assert (settings.weights_source, settings.weights_path, settings.device, settings.seed) == ("DEFAULT", "", "CPU", 0)
     assert (settings.result_mode, settings.min_piece_faces, settings.min_piece_fraction, settings.target_faces) == ("REPLACE", 0, 0.0, 0)
-    assert (settings.image_size, settings.colour_views) == (640, 40)
+    assert (settings.image_size, settings.colour_views) == (0, 40)  # 0: the weights decide
     assert tuple(settings.max_room_size) == pytest.approx((20.0, 20.0, 6.0))
     assert set(rna["weights_source"].enum_items.keys()) == {"DEFAULT", "FILE", "RANDOM"}
     assert set(rna["result_mode"].enum_items.keys()) == {"REPLACE", "ADD"}

@@ -33,7 +33,7 @@ DEFAULT_CAMERA_HEIGHT = 1.5
 DEFAULT_MAX_IMAGE_SIDE = 1024  # engine.poses.SfmOptions.max_side: full registration on real photos at 4x less cost
 # engine.recon.ReconSettings defaults, repeated here because properties must not import the engine's
 # torch side; tests/test_blender_reconstruct.py checks the two agree.
-DEFAULT_IMAGE_SIZE = 640
+DEFAULT_IMAGE_SIZE = 0  # 0 = the size the chosen weights were trained at
 DEFAULT_COLOUR_VIEWS = 40
 DEFAULT_MAX_ROOM_SIZE = (20.0, 20.0, 6.0)
 
@@ -177,9 +177,10 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
     )
     image_size: IntProperty(
         name="Image Size",
-        description="Photos are resized to this long side before the network sees them (it was trained at 640)",
+        description="Photos are resized to this long side before the network sees them; "
+        "0 uses the size the weights were trained at (128 for the default weights, 640 for the official ones)",
         default=DEFAULT_IMAGE_SIZE,
-        min=32,
+        min=0,
         max=4096,
         subtype="PIXEL",
     )

@@ -109,7 +109,7 @@ def recon_settings_from_scene(settings: Any, with_weights: bool = True) -> Recon
         tile_size=int(settings.tile_size),
         device="cuda" if settings.device == "CUDA" else "cpu",
         seed=int(settings.seed),
-        image_long_side=int(settings.image_size),
+        image_long_side=int(settings.image_size) or None,  # 0: the weights' own training size
         colour=int(settings.colour_views) > 0,
         colour_views=max(int(settings.colour_views), 1),
         max_room_size=tuple(round(float(v), 6) for v in settings.max_room_size),
