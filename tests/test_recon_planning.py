@@ -113,3 +113,14 @@ def test_view_selection_is_seeded_and_only_returns_views_that_see_the_tile():
     # With room for all, a tile takes exactly the views that see it.
     everything = select_views_for_tile(tile, grid, Ks, poses, sizes, max_views=60, seed=0)
     assert set(everything) == seeing
+
+
+def test_planning_and_the_tile_overlay_data_do_not_import_torch():
+    import subprocess
+    import sys
+
+    code = ("import sys, numpy as np; from engine.recon import tile_grid, plan_reconstruction; "
+            "from engine.recon.tiles import make_tiles; from engine.recon.bounds import SceneBounds; "
+            "g, t = make_tiles(SceneBounds(np.zeros(3), np.ones(3), (False,) * 3), 0.04, 96, 48); tile_grid(t); "
+            "assert 'torch' not in sys.modules, 'torch was imported'")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))
