@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -116,11 +120,8 @@ def test_view_selection_is_seeded_and_only_returns_views_that_see_the_tile():
 
 
 def test_planning_and_the_tile_overlay_data_do_not_import_torch():
-    import subprocess
-    import sys
-
     code = ("import sys, numpy as np; from engine.recon import tile_grid, plan_reconstruction; "
             "from engine.recon.tiles import make_tiles; from engine.recon.bounds import SceneBounds; "
             "g, t = make_tiles(SceneBounds(np.zeros(3), np.ones(3), (False,) * 3), 0.04, 96, 48); tile_grid(t); "
             "assert 'torch' not in sys.modules, 'torch was imported'")
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(__import__("pathlib").Path(__file__).parents[1]))
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(Path(__file__).parents[1]))
