@@ -100,3 +100,15 @@ def scene_state(scene) -> dict:
         "render": (render.resolution_x, render.resolution_y, render.pixel_aspect_x, render.pixel_aspect_y),
         "scene_camera": scene.camera.name if scene.camera else None,
     }
+
+
+@pytest.fixture(scope="module")
+def single_torch_thread():
+    """One intra-op torch thread for a module of tiny tensors: on a busy 2-core machine two spinning
+    OpenMP threads make them 30-100x slower. Use with `pytest.mark.usefixtures`."""
+    import torch
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

@@ -24,14 +24,7 @@ FOX_PHOTO = SHARED / "data" / "fox" / "images" / "0030.jpg"
 RED_FOX = 277  # ImageNet class index
 
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    """One intra-op thread: these tensors are tiny, and on a shared 2-core machine two spinning
-    OpenMP threads make them 30-100x slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def official_keys(prefix: str) -> dict[str, tuple[int, ...]]:

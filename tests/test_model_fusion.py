@@ -6,6 +6,7 @@ import math
 
 import pytest
 import torch
+from conftest import look_at_pose
 
 from engine.model import VortxConfig, VortxNet
 from engine.model.fusion import ViewAttention, masked_mean_pool, softmax_null_pool
@@ -14,26 +15,11 @@ H, W = 48, 64
 TINY = dict(backbone="mnasnet", feature_channels=(16, 8, 8), unet_base_widths=(4, 4, 4))
 
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    """One intra-op thread: these tensors are tiny, and on a shared 2-core machine two spinning
-    OpenMP threads make them 30-100x slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def look_at(eye, target) -> torch.Tensor:
-    """Camera-to-world (4, 4) float64 in OpenCV axes (x right, y down, z forward), world Z up."""
-    eye = torch.tensor(eye, dtype=torch.float64)
-    z = torch.tensor(target, dtype=torch.float64) - eye
-    z = z / z.norm()
-    x = torch.linalg.cross(z, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
-    x = x / x.norm()
-    pose = torch.eye(4, dtype=torch.float64)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, torch.linalg.cross(z, x), z, eye
-    return pose
+    return torch.from_numpy(look_at_pose(eye, target))
 
 
 def scene(num_views: int = 4):

@@ -14,14 +14,7 @@ H, W = 48, 64
 K = torch.tensor([[50.0, 0.0, 31.0], [0.0, 55.0, 23.0], [0.0, 0.0, 1.0]])
 
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    """One intra-op thread: these tensors are tiny, and on a shared 2-core machine two spinning
-    OpenMP threads make them 30-100x slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def rotation_z(angle: float) -> torch.Tensor:

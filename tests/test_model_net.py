@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import look_at_pose
 
 from engine.errors import WeightsError
 from engine.model import LevelOutput, VortxBatch, VortxConfig, VortxNet, load_weights, read_config, save_weights
@@ -18,26 +19,11 @@ TINY = dict(backbone="mnasnet", feature_channels=(16, 8, 8), unet_base_widths=(8
 H, W = 48, 64
 
 
-@pytest.fixture(autouse=True, scope="module")
-def single_thread():
-    """One intra-op thread: these tensors are tiny, and on a shared 2-core machine two spinning
-    OpenMP threads make them 30-100x slower."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def look_at(eye, target) -> torch.Tensor:
-    """Camera-to-world (4, 4) float64 in OpenCV axes (x right, y down, z forward), world Z up."""
-    eye = torch.tensor(eye, dtype=torch.float64)
-    z = torch.tensor(target, dtype=torch.float64) - eye
-    z = z / z.norm()
-    x = torch.linalg.cross(z, torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64))
-    x = x / x.norm()
-    pose = torch.eye(4, dtype=torch.float64)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, torch.linalg.cross(z, x), z, eye
-    return pose
+    return torch.from_numpy(look_at_pose(eye, target))
 
 
 def tiny_batch(batch_size: int = 2, num_views: int = 3, crop_shape=(16, 16, 8)) -> VortxBatch:
