@@ -43,6 +43,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="clip the scene bounds to this size in metres around the median camera (default %(default)s)")
     parser.add_argument("--frustum-depth", type=float, default=defaults.frustum_depth,
                         help="scene bounds = camera frusta cut at this depth in metres (default %(default)s)")
+    parser.add_argument("--camera-height", type=float, default=1.5,
+                        help="metres above the floor, for the scale of captures whose poses are not metric "
+                             "(default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -73,6 +76,28 @@ def sidecar_path(mesh_path: Path) -> Path:
     return mesh_path.with_suffix(".json")
 
 
+def metric_posed(capture, camera_height: float, progress: TqdmProgress):
+    """The capture as the network needs it: posed, Z up, metres.
+
+    Photos without poses get structure from motion first (as `python -m engine poses` would);
+    posed captures in arbitrary units (COLMAP, most transforms.json) are turned Z up and, where a
+    floor can be found, scaled from the camera height. Metric layouts pass through untouched.
+    """
+    from ..poses import SfmOptions, align_gravity_and_scale, estimate_poses
+
+    if not capture.posed_frames:
+        result = estimate_poses(capture, SfmOptions(camera_height=camera_height), progress=progress)
+        print(result.report, file=sys.stderr)
+        return result.capture
+    if capture.metric:
+        return capture
+    alignment = align_gravity_and_scale(capture, camera_height=camera_height)
+    print(f"poses: {alignment.description}", file=sys.stderr)
+    for warning in alignment.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    return alignment.capture
+
+
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if out.suffix.lower() not in MESH_SUFFIXES:
@@ -86,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     capture = load_capture(args.capture)
     progress = TqdmProgress(disable=args.quiet)
     try:
+        capture = metric_posed(capture, args.camera_height, progress)
         result = reconstruct(capture, settings, progress=progress)
     finally:
         progress.close()
