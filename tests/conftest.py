@@ -64,18 +64,9 @@ def empty_scene(blender):
 
 def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)):
     """Camera-to-world (4, 4) float64 in OpenCV axes (x right, y down, z forward) looking at `target`."""
-    import numpy as np
+    from fixtures_capture import look_at
 
-    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, y, z], axis=1)
-    pose[:3, 3] = eye
-    return pose
+    return look_at(eye, target, up)
 
 
 def scene_state(scene) -> dict:
