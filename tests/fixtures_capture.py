@@ -91,6 +91,16 @@ def look_at(eye: Sequence[float], target: Sequence[float], up: Sequence[float] =
     return pose
 
 
+def look_yaw_pitch(position: Sequence[float], yaw: float, pitch: float) -> np.ndarray:
+    """Camera-to-world (4, 4), OpenCV axes, looking along yaw (about +Z) and pitch (up positive)."""
+    forward = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)])
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, np.cross(forward, right), forward, position
+    return pose
+
+
 def ring_poses(count: int, radius: float = 2.0, height: float = 1.5,
                target: Sequence[float] = (0.0, 0.0, 1.0)) -> list[np.ndarray]:
     """Cameras on a horizontal circle, all looking at `target` (a room-scan-like rig)."""

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from fixtures_capture import look_yaw_pitch as look
 
 from engine.capture.model import Capture, Frame
 from engine.errors import PoseError
@@ -13,16 +14,6 @@ from engine.poses.align import Similarity, pose_errors, rotation_angle_deg
 from engine.poses.gravity import KnownDistance, align_gravity_and_scale, mean_up_direction, rotation_taking
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
-
-
-def look(position: np.ndarray, yaw: float, pitch: float) -> np.ndarray:
-    """Camera-to-world (4, 4), OpenCV axes, looking along yaw (about +Z) and pitch (up positive)."""
-    forward = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)])
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, np.cross(forward, right), forward, position
-    return pose
 
 
 def room(rng: np.random.Generator) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:

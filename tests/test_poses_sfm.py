@@ -14,6 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from fixtures_capture import look_yaw_pitch as look
 
 from engine.capture.model import Capture, Frame
 from engine.errors import PoseError
@@ -63,15 +64,6 @@ def render(cam_to_world: np.ndarray, faces: list) -> np.ndarray:
                            cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
         image[mask] = warped[mask]
     return np.repeat(image[..., None], 3, axis=-1)
-
-
-def look(position: np.ndarray, yaw: float, pitch: float) -> np.ndarray:
-    forward = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)])
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, np.cross(forward, right), forward, position
-    return pose
 
 
 def true_poses(count: int = 12) -> list[np.ndarray]:
