@@ -277,6 +277,7 @@ class Trainer:
         self.scaler = torch.amp.GradScaler("cuda", enabled=self.use_amp)
         self.show_progress = progress and self.dist.is_main
         self.log_enabled = log and self.dist.is_main
+        self.checkpointing = log
         self.out = cfg.out_path
         self.history: list[dict] = []
 
@@ -365,8 +366,10 @@ class Trainer:
                     bar.set_postfix(phase=rec["phase"], loss=f"{rec['loss']:.3f}")
                 if on_step:
                     on_step(rec)
-                timed_out = max_minutes and (time.time() - start) > 60 * max_minutes
-                if self.log_enabled and (self.step % self.cfg.checkpoint_every == 0 or self.step == until or timed_out):
+                timed_out = self._agree(bool(max_minutes) and (time.time() - start) > 60 * max_minutes)
+                # Every rank takes part in a checkpoint (it gathers their RNG and sampler states); only
+                # the main rank writes it.
+                if self.checkpointing and (self.step % self.cfg.checkpoint_every == 0 or self.step == until or timed_out):
                     self.save_checkpoint(self.out / CHECKPOINT)
                 if timed_out:
                     break
@@ -377,6 +380,17 @@ class Trainer:
                 log.close()
         self.history.extend(records)
         return records
+
+    def _agree(self, flag: bool) -> bool:
+        """True on every rank when it is True on any (ranks must stop at the same step, or the
+        ones still training wait forever for the others' gradients)."""
+        if not self.dist.enabled:
+            return flag
+        import torch.distributed as tdist
+
+        value = torch.tensor([1.0 if flag else 0.0], device=self.device)
+        tdist.all_reduce(value, op=tdist.ReduceOp.MAX)
+        return bool(value.item() > 0)
 
     # -- checkpoints ---------------------------------------------------------------------------
     def state_dict(self) -> dict:
