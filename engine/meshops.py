@@ -108,3 +108,26 @@ def remove_small_pieces(mesh: Mesh, min_faces: int = 0, min_fraction: float = 0.
     if stats.removed_faces == 0:
         return mesh, stats
     return keep_faces(mesh, keep), stats
+
+
+def subdivide(vertices: np.ndarray, faces: np.ndarray, max_edge: float = 0.05, max_rounds: int = 8):
+    """Split triangles with an edge longer than max_edge into 4 (repeatedly), so the point-sampling
+    rasteriser covers big ground-truth triangles without holes."""
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    for _ in range(max_rounds):
+        tri = v[f]
+        edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(1)
+        big = edge > max_edge
+        if not big.any():
+            break
+        fb = f[big]
+        a, b, c = v[fb[:, 0]], v[fb[:, 1]], v[fb[:, 2]]
+        n0 = len(v)
+        k = len(fb)
+        v = np.concatenate([v, (a + b) / 2, (b + c) / 2, (c + a) / 2])
+        ab, bc, ca = n0 + np.arange(k), n0 + k + np.arange(k), n0 + 2 * k + np.arange(k)
+        new = np.concatenate([np.stack([fb[:, 0], ab, ca], 1), np.stack([ab, fb[:, 1], bc], 1),
+                              np.stack([ca, bc, fb[:, 2]], 1), np.stack([ab, bc, ca], 1)])
+        f = np.concatenate([f[~big], new])
+    return v, f

@@ -113,6 +113,21 @@ def load_image(path: Path | str) -> np.ndarray:
     return cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
+def load_depth(path: Path | str) -> np.ndarray:
+    """A ScanNet-style depth map (16-bit PNG, millimetres) as float32 metres (H, W); 0 = no depth."""
+    path = Path(path)
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8)
+    except OSError as error:
+        raise CaptureError(f"cannot read depth map {path}: {error.strerror or error}") from error
+    import cv2
+    depth = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    if depth is None or depth.ndim != 2:
+        raise CaptureError(f"depth map {path} is not a single-channel 16-bit PNG in millimetres: re-export it "
+                           "or remove it from the capture's depth/ folder.")
+    return depth.astype(np.float32) / 1000.0
+
+
 def intrinsics_from_focal(focal_px: float, width: int, height: int) -> np.ndarray:
     """Pinhole K (3, 3) float64 with the principal point at the image centre.
 

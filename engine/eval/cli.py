@@ -1,7 +1,8 @@
-"""`python -m engine eval PRED.ply GT.ply|ROOM_DIR [--observed TSDF.npz] [--json out.json]`.
+"""`python -m engine eval PRED.ply GT.ply|ROOM_DIR [--observed TSDF.npz] [--depth [CAPTURE]] [--json out.json]`.
 
 Prints the Atlas metrics table for the prediction and, with --box-baseline, for the room box fitted
-to the ground truth (the floor a real result must beat).
+to the ground truth (the floor a real result must beat). With --depth, also the 2D depth metrics:
+the meshes rendered into the capture's posed frames against their depth maps.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ from pathlib import Path
 from ..errors import VortxError
 from ..mesh_io import read_ply
 from ..tsdf.volume import TsdfVolume
+from .depth_metrics import DEPTH_METRIC_NAMES
 from .mesh_metrics import MeshMetrics, evaluate_mesh
 from .room_box import fit_room_box, room_box_from_tsdf
 
@@ -29,6 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threshold", type=float, default=0.05, help="precision/recall distance (m)")
     parser.add_argument("--down-sample", type=float, default=0.02, help="voxel down-sampling size (m)")
     parser.add_argument("--box-baseline", action="store_true", help="also score a plain box room fitted to the ground truth")
+    parser.add_argument("--depth", nargs="?", const=True, default=None, metavar="CAPTURE",
+                        help="also the depth metrics against the depth maps of CAPTURE (default: the room "
+                        "folder given as GT)")
+    parser.add_argument("--depth-every", type=int, default=1, help="with --depth: use every N-th frame")
     parser.add_argument("--json", type=Path, help="write the metrics here as JSON")
 
 
@@ -47,6 +53,16 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, KeyError) as error:
         raise VortxError(f"cannot read mesh: {error}") from error
     observed = TsdfVolume.load(observed_path) if observed_path else None
+    depth_views = None
+    if args.depth is not None:
+        source = args.gt if args.depth is True else Path(args.depth)
+        if not source.is_dir():
+            raise VortxError(f"--depth needs a capture folder with depth maps (a rendered room or ScanNet scene); "
+                             f"{source} is not a folder")
+        from ..capture import load_capture
+        from .depth_metrics import capture_depth_views
+
+        depth_views = capture_depth_views(load_capture(source), every=max(1, args.depth_every))
 
     def score(mesh) -> MeshMetrics:
         return evaluate_mesh(mesh, gt, observed, args.threshold, args.down_sample, trim_gt=not args.no_trim_gt)
@@ -60,14 +76,31 @@ def run(args: argparse.Namespace) -> int:
     print(f"ground truth: {gt_path}   trimmed to observed voxels: {trimmed}")
     print(f"threshold {args.threshold * 100:g} cm, down-sampling {args.down_sample * 100:g} cm")
     print(format_table(rows))
+    depth_rows = {}
+    if depth_views is not None:
+        from .depth_metrics import mesh_depth_metrics
+
+        meshes = {args.pred.name: pred} | ({"room box baseline": box} if args.box_baseline else {})
+        depth_rows = {name: mesh_depth_metrics(m.vertices, m.faces, depth_views) for name, m in meshes.items()}
+        print(f"depth metrics over {len(depth_views)} frames (meshes rendered into each frame)")
+        print(format_depth_table(depth_rows))
     if args.json:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps({
             "gt": str(gt_path), "observed": str(observed_path) if observed_path else None,
             "threshold": args.threshold, "down_sample": args.down_sample, "trim_gt": not args.no_trim_gt,
             "results": {name: m.as_dict() for name, m in rows.items()},
+            "depth": depth_rows or None,
         }, indent=2))
     return 0
+
+
+def format_depth_table(rows: dict[str, dict[str, float]]) -> str:
+    width = max(len(n) for n in rows) + 2
+    lines = ["".ljust(width) + "".join(c.rjust(9) for c in DEPTH_METRIC_NAMES)]
+    for name, m in rows.items():
+        lines.append(name.ljust(width) + "".join(f"{m[c]:9.4f}" for c in DEPTH_METRIC_NAMES))
+    return "\n".join(lines)
 
 
 def format_table(rows: dict[str, MeshMetrics]) -> str:

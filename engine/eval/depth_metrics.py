@@ -45,3 +45,47 @@ def mean_depth_metrics(per_frame: Iterable[dict[str, float]]) -> dict[str, float
     """Average of per-frame metrics (frames are averaged, not pixels, as in the reference), NaNs skipped."""
     rows = list(per_frame)
     return {k: float(np.nanmean([r[k] for r in rows])) if rows else float("nan") for k in DEPTH_METRIC_NAMES}
+
+
+def mesh_depth_metrics(
+    vertices: np.ndarray,
+    faces: np.ndarray,
+    views: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    max_depth: float = 10.0,
+) -> dict[str, float]:
+    """The 2D depth metrics of a mesh (Atlas `eval_depth`): the mesh is rendered into every view
+    and compared with that view's true depth, then averaged over views.
+
+    views: (K (3, 3) in pixels of the depth map, pose (4, 4) camera-to-world, true depth (H, W)
+    metres with 0 = missing). Pixels the mesh does not cover count as missing predictions.
+    """
+    from ..meshops import subdivide
+    from ..recon.colour import render_depth
+
+    # The rasteriser drops triangles that cross a camera's near plane and caps the samples of huge
+    # ones; metre-long triangles (a box room, a ground-truth wall) must be split first.
+    vertices, faces = subdivide(vertices, faces, max_edge=0.1)
+    rows = []
+    for K, pose, true in views:
+        h, w = np.shape(true)
+        pred = render_depth(vertices, faces, np.asarray(K, np.float64), np.asarray(pose, np.float64), (w, h))
+        rows.append(depth_metrics(np.where(np.isfinite(pred), pred, 0.0), true, max_depth))
+    return mean_depth_metrics(rows)
+
+
+def capture_depth_views(capture, every: int = 1) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """(K, pose, depth) of every `every`-th posed frame with a depth map, K scaled to the depth map."""
+    from ..capture import load_depth
+    from ..errors import VortxError
+
+    views = []
+    frames = [f for f in capture.frames if f.pose is not None and f.depth_path is not None]
+    if not frames:
+        raise VortxError(f"{capture.root}: no frame has both a pose and a depth map; depth metrics need them")
+    for frame in frames[::every]:
+        depth = load_depth(frame.depth_path)
+        K = np.array(frame.K, dtype=np.float64)
+        K[0] *= depth.shape[1] / frame.width
+        K[1] *= depth.shape[0] / frame.height
+        views.append((K, np.asarray(frame.pose, np.float64), depth))
+    return views

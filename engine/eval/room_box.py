@@ -14,6 +14,10 @@ from ..tsdf.volume import TsdfVolume
 # Corner k of the box has coordinates (bit0 ? hi : lo) per axis.
 _CORNERS = np.array([[(k >> 0) & 1, (k >> 1) & 1, (k >> 2) & 1] for k in range(8)])
 # The six sides as corner loops; box_mesh winds their triangles so normals face INTO the box.
+# A box side needs this fraction of the fullest plane's points on its half of the axis: more than a
+# patch seen through a window (test_eval), less than a wall seen only in part (the far walls of a
+# rendered room, beyond the 3 m depth cap of the ground truth).
+PLANE_FRACTION = 0.25
 _QUADS = [(0, 1, 3, 2), (4, 5, 7, 6), (0, 1, 5, 4), (2, 3, 7, 6), (0, 2, 6, 4), (1, 3, 7, 5)]
 
 
@@ -31,13 +35,14 @@ def box_mesh(lo: np.ndarray, hi: np.ndarray) -> Mesh:
 
 
 def fit_room_box(points: np.ndarray, bin_size: float = 0.04) -> Mesh:
-    """Axis-aligned box whose sides sit on the dominant planes of surface points (N, 3).
+    """Axis-aligned box whose sides sit on the outermost large planes of surface points (N, 3).
 
     Per axis, the coordinates are histogrammed (bin_size) inside their 1 %..99 % range; the lower side
-    is the fullest bin of the lower half, the upper side the fullest bin of the upper half. Walls,
-    floor and ceiling are the largest planes of a room, so they win over furniture, and surfaces seen
-    through doors and windows (beyond the walls) cannot drag the box outward as an extent would.
-    Use `box_mesh` directly for known bounds (e.g. camera extents plus a margin).
+    is the lowest bin of the lower half holding at least `PLANE_FRACTION` of that half's fullest bin,
+    the upper side likewise the highest bin of the upper half. Floor, walls and ceiling are large
+    planes at the outside of a room, so they win over furniture (a table top is large but inside),
+    and surfaces seen through doors and windows (beyond the walls, sparse) cannot drag the box
+    outward as an extent would. Use `box_mesh` directly for known bounds.
     """
     points = np.asarray(points, np.float64).reshape(-1, 3)
     if len(points) == 0:
@@ -53,8 +58,9 @@ def fit_room_box(points: np.ndarray, bin_size: float = 0.04) -> Mesh:
         counts, edges = np.histogram(c, bins=edges)
         centres = (edges[:-1] + edges[1:]) / 2
         half = len(counts) // 2
-        lo[axis] = centres[:half][np.argmax(counts[:half])]
-        hi[axis] = centres[half:][np.argmax(counts[half:])]
+        lower, upper = counts[:half], counts[half:]
+        lo[axis] = centres[:half][np.flatnonzero(lower >= PLANE_FRACTION * lower.max())[0]]
+        hi[axis] = centres[half:][np.flatnonzero(upper >= PLANE_FRACTION * upper.max())[-1]]
     return box_mesh(lo, hi)
 
 

@@ -119,16 +119,6 @@ def find_rooms(paths: Sequence[str | Path]) -> list[Path]:
     return sorted(dict.fromkeys(rooms))
 
 
-def read_depth(path: Path) -> np.ndarray:
-    """Metric depth (H, W) float32 metres from a ScanNet-style 16-bit millimetre PNG (0 = none)."""
-    import cv2
-
-    d = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if d is None:
-        raise VortxError(f"cannot read depth map {path}")
-    return d.astype(np.float32) / 1000.0
-
-
 class _LazyDepths:
     """Sequence of depth maps read on access (fusion reads one frame at a time)."""
 
@@ -139,7 +129,9 @@ class _LazyDepths:
         return len(self.paths)
 
     def __getitem__(self, i):
-        return read_depth(self.paths[i])
+        from ..capture import load_depth
+
+        return load_depth(self.paths[i])
 
 
 def gt_path(room: Path) -> Optional[Path]:
@@ -184,7 +176,7 @@ def load_room(room: Path, image_size: tuple[int, int]) -> RoomData:
     """Load a rendered room at training resolution `image_size` = (W, H)."""
     import cv2
 
-    from ..capture import load_capture, load_image
+    from ..capture import load_capture, load_depth, load_image
 
     room = Path(room)
     gt = gt_path(room)
@@ -203,7 +195,7 @@ def load_room(room: Path, image_size: tuple[int, int]) -> RoomData:
         img = load_image(f.image_path)
         h0, w0 = img.shape[:2]
         images.append(cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA))
-        d = read_depth(f.depth_path)
+        d = load_depth(f.depth_path)
         depths.append(cv2.resize(d, (W, H), interpolation=cv2.INTER_NEAREST))
         K = np.array(f.K, dtype=np.float64)
         K[0] *= W / w0

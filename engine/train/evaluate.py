@@ -17,6 +17,9 @@ import numpy as np
 
 from .dataset import precompute_room
 
+DEPTH_EVERY = 4  # frames for the depth metrics: every 4th (10 of a rendered room's 40)
+DEPTH_KEYS = ("AbsRel", "AbsDiff", "r1", "complete")
+
 
 def evaluate_rooms(
     rooms: Sequence[Path],
@@ -27,6 +30,7 @@ def evaluate_rooms(
 ) -> dict:
     """weights: label -> weights path. Returns {label: {room: metrics dict}, ...} plus means."""
     from ..capture import load_capture
+    from ..eval.depth_metrics import capture_depth_views, mesh_depth_metrics
     from ..eval.mesh_metrics import evaluate_mesh
     from ..eval.room_box import room_box_from_tsdf
     from ..mesh_io import read_ply, write_ply
@@ -41,11 +45,17 @@ def evaluate_rooms(
         volume = TsdfVolume.load(precompute_room(room))
         gt = read_ply(room / "mesh_gt.ply")
         capture = load_capture(room)
+        depth_views = capture_depth_views(capture, every=DEPTH_EVERY)
+
+        def depth_scores(mesh) -> dict:
+            scores = mesh_depth_metrics(mesh.vertices, mesh.faces, depth_views)
+            return {k: scores[k] for k in DEPTH_KEYS}
+
         for label, path in weights.items():
             settings = ReconSettings(weights=str(path) if path else None, **(recon_overrides or {}))
             t0 = time.time()
             res = reconstruct(capture, settings)
-            m = evaluate_mesh(res.mesh, gt, observed=volume).as_dict()
+            m = evaluate_mesh(res.mesh, gt, observed=volume).as_dict() | depth_scores(res.mesh)
             m["seconds"] = round(time.time() - t0, 1)
             m["faces"] = int(len(res.mesh.faces))
             results[label][room.name] = m
@@ -54,14 +64,15 @@ def evaluate_rooms(
                 write_ply(Path(out_dir) / f"{room.name}_{_slug(label)}.ply", res.mesh.vertices, res.mesh.faces)
             print(f"{room.name} {label}: F {m['fscore']:.3f} acc {m['acc']:.3f} comp {m['comp']:.3f}", flush=True)
         if box:
-            m = evaluate_mesh(room_box_from_tsdf(volume), gt, observed=volume).as_dict()
+            box_mesh = room_box_from_tsdf(volume)
+            m = evaluate_mesh(box_mesh, gt, observed=volume).as_dict() | depth_scores(box_mesh)
             results["room box"][room.name] = m
             print(f"{room.name} room box: F {m['fscore']:.3f}", flush=True)
         if out_dir is not None:  # partial results survive an interrupted run
             save_json({"per_room": results}, Path(out_dir) / "metrics_partial.json")
     summary = {}
     for label, per_room in results.items():
-        keys = ("acc", "comp", "prec", "recall", "fscore")
+        keys = ("acc", "comp", "prec", "recall", "fscore") + DEPTH_KEYS
         summary[label] = {k: float(np.mean([m[k] for m in per_room.values()])) for k in keys} if per_room else {}
     return {"per_room": results, "mean": summary}
 
@@ -72,11 +83,13 @@ def _slug(label: str) -> str:
 
 def metrics_table(result: dict) -> str:
     """Markdown table of the mean metrics."""
-    lines = ["| method | F-score | precision | recall | acc (m) | comp (m) |", "|---|---|---|---|---|---|"]
+    lines = ["| method | F-score | precision | recall | acc (m) | comp (m) | AbsRel | AbsDiff (m) | r1 | depth complete |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for label, m in result["mean"].items():
         if m:
             lines.append(f"| {label} | {m['fscore']:.3f} | {m['prec']:.3f} | {m['recall']:.3f} | "
-                         f"{m['acc']:.3f} | {m['comp']:.3f} |")
+                         f"{m['acc']:.3f} | {m['comp']:.3f} | {m['AbsRel']:.3f} | {m['AbsDiff']:.3f} | "
+                         f"{m['r1']:.3f} | {m['complete']:.3f} |")
     return "\n".join(lines)
 
 
@@ -113,34 +126,12 @@ def shade(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
     return img.astype(np.uint8)
 
 
-def subdivide(vertices: np.ndarray, faces: np.ndarray, max_edge: float = 0.05, max_rounds: int = 8):
-    """Split triangles with an edge longer than max_edge into 4 (repeatedly), so the point-sampling
-    rasteriser covers big ground-truth triangles without holes."""
-    v = np.asarray(vertices, np.float64)
-    f = np.asarray(faces, np.int64)
-    for _ in range(max_rounds):
-        tri = v[f]
-        edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(1)
-        big = edge > max_edge
-        if not big.any():
-            break
-        fb = f[big]
-        a, b, c = v[fb[:, 0]], v[fb[:, 1]], v[fb[:, 2]]
-        n0 = len(v)
-        k = len(fb)
-        v = np.concatenate([v, (a + b) / 2, (b + c) / 2, (c + a) / 2])
-        ab, bc, ca = n0 + np.arange(k), n0 + k + np.arange(k), n0 + 2 * k + np.arange(k)
-        new = np.concatenate([np.stack([fb[:, 0], ab, ca], 1), np.stack([ab, fb[:, 1], bc], 1),
-                              np.stack([ca, bc, fb[:, 2]], 1), np.stack([ab, bc, ca], 1)])
-        f = np.concatenate([f[~big], new])
-    return v, f
-
-
 def render_side_by_side(meshes: Sequence, labels: Sequence[str], out_path: Path, size=(320, 240),
                         clip_above: Optional[float] = None) -> Path:
     """One elevated view of each mesh (same camera), ceilings clipped, written as one PNG."""
     import cv2
 
+    from ..meshops import subdivide
     from ..recon.colour import render_depth
 
     ref = np.asarray(meshes[-1].vertices, np.float64)
