@@ -35,6 +35,21 @@ def test_a_weights_file_round_trips(tmp_path):
     assert all(torch.equal(v, state[k]) for k, v in model.state_dict().items())
 
 
+def test_shipping_weights_with_scene_norm_statistics_switches_every_3d_batchnorm(tmp_path):
+    from engine.sparse import SparseBatchNorm
+    from engine.train.evaluate import ship_weights
+
+    model, config, _ = load_network("random", 3, CPU)
+    trained = model_weights.save_weights(model, config, tmp_path / "trained.safetensors")
+    shipped = ship_weights(trained, tmp_path / "shipped.safetensors", config_changes={"sparse_norm_statistics": "scene"})
+    loaded, loaded_config, _ = load_network(str(shipped), 0, CPU)
+    assert config.sparse_norm_statistics == "running" and loaded_config.sparse_norm_statistics == "scene"
+    norms_3d = [m for m in loaded.cnns3d.modules() if isinstance(m, SparseBatchNorm)]
+    assert norms_3d and all(m.scene_statistics for m in norms_3d)
+    assert not any(m.scene_statistics for m in model.modules() if isinstance(m, SparseBatchNorm))
+    assert '"sparse_norm_statistics": "scene"' in model_weights.sidecar_path(shipped).read_text()
+
+
 def test_missing_default_weights_say_what_to_do(tmp_path, monkeypatch):
     monkeypatch.setattr(model_weights, "DEFAULT_WEIGHTS", tmp_path / "absent.safetensors")
     with pytest.raises(WeightsError, match="--weights random"):

@@ -58,3 +58,26 @@ def test_relu_keeps_coordinates():
     y = SparseReLU()(x)
     assert y.coords is x.coords
     torch.testing.assert_close(y.feats, x.feats.clamp(min=0))
+
+
+def test_scene_statistics_normalise_with_the_voxels_passed_in_and_keep_the_running_averages():
+    x = sparse_input(seed=2)
+    bn = SparseBatchNorm(4).double()
+    with torch.no_grad():
+        bn.running_mean.copy_(torch.tensor([5.0, -3.0, 0.0, 1.0]))
+        bn.running_var.copy_(torch.tensor([0.5, 4.0, 2.0, 9.0]))
+        bn.weight.copy_(torch.tensor([1.0, 2.0, 0.5, -1.0]))
+        bn.bias.copy_(torch.tensor([0.0, 1.0, -1.0, 0.5]))
+    bn.scene_statistics = True
+    bn.eval()
+    before = {k: v.clone() for k, v in bn.state_dict().items()}
+    y = bn(x)
+    mean = x.feats.mean(0)
+    var = ((x.feats - mean) ** 2).mean(0)
+    torch.testing.assert_close(y.feats, (x.feats - mean) / torch.sqrt(var + bn.eps) * bn.weight + bn.bias, **TOL)
+    for key, value in bn.state_dict().items():
+        torch.testing.assert_close(value, before[key], **TOL)  # inference never changes the weights file's state
+
+    bn.scene_statistics = False
+    expected_running = (x.feats - bn.running_mean) / torch.sqrt(bn.running_var + bn.eps) * bn.weight + bn.bias
+    torch.testing.assert_close(bn(x).feats, expected_running, **TOL)

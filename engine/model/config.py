@@ -20,6 +20,8 @@ LEVEL_IMAGE_STRIDES: tuple[int, int, int] = (16, 8, 4)
 
 BACKBONES = ("mnasnet", "efficientnet_lite0")
 FUSIONS = ("transformer", "average")
+# Which statistics the 3D CNN's BatchNorms use at inference (see VortxConfig).
+SPARSE_NORM_STATISTICS = ("running", "scene")
 
 
 @dataclass(frozen=True)
@@ -41,6 +43,11 @@ class VortxConfig:
                         upsampling (medium, fine), as the authors do to bound memory.
     image_long_side:    long side in pixels of the photos the network was trained on; reconstruction
                         resizes photos to it unless told otherwise (official: 640 x 480).
+    sparse_norm_statistics: what the 3D CNN's BatchNorms normalise with at inference. "running":
+                        the averages accumulated in training (official). "scene": the statistics of
+                        the scene's own active voxels at that level, as training normalises with the
+                        batch's; for weights whose running averages, gathered on small training crops,
+                        do not describe whole scenes (MODEL.md measures it).
     """
 
     backbone: str = "efficientnet_lite0"
@@ -54,6 +61,7 @@ class VortxConfig:
     voxel_dropout: bool = True
     max_train_voxels: tuple[int, int] = (2**14, 2**16)
     image_long_side: int = 640
+    sparse_norm_statistics: str = "running"
 
     def __post_init__(self) -> None:
         # Lists arrive from JSON; store tuples so the config stays hashable and comparable.
@@ -71,6 +79,8 @@ class VortxConfig:
             for c in self.feature_channels:
                 if c % self.attn_heads:
                     raise ValueError(f"feature channels {c} not divisible by attn_heads {self.attn_heads}")
+        if self.sparse_norm_statistics not in SPARSE_NORM_STATISTICS:
+            raise ValueError(f"sparse_norm_statistics must be one of {SPARSE_NORM_STATISTICS}, got {self.sparse_norm_statistics!r}")
         if self.voxel_size <= 0:
             raise ValueError("voxel_size must be positive")
 

@@ -21,7 +21,7 @@ import dataclasses
 import torch
 from torch import nn
 
-from ..sparse import SparseConv3d, SparseVoxels
+from ..sparse import SparseBatchNorm, SparseConv3d, SparseVoxels
 from .backbone_efficientnet import EfficientNetLite0Pyramid
 from .backbone_mnasnet import MnasNetPyramid
 from .backprojection import Projection, project_points, sample_features
@@ -75,6 +75,9 @@ class VortxNet(nn.Module):
                 self.mv_fusion[name] = AverageFusion()
             self.cnns3d[name] = SparseUNet(config.unet_in_channels(level), config.unet_base_widths[level])
             self.output_layers[name] = SparseConv3d(config.unet_out_channels(level), 1, kernel_size=1)
+        for module in self.cnns3d.modules():
+            if isinstance(module, SparseBatchNorm):
+                module.scene_statistics = config.sparse_norm_statistics == "scene"
 
     # --- configuration ------------------------------------------------------------------------
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import torch.nn.functional as F
 from torch import nn
 
 from .tensor import SparseVoxels
@@ -13,10 +14,19 @@ class SparseBatchNorm(nn.BatchNorm1d):
     Inactive voxels do not exist in the feature matrix, so batch statistics are over active voxels
     of all batch elements together. Subclassing keeps the parameter and buffer names
     (weight, bias, running_mean, running_var, num_batches_tracked) of the official checkpoint.
+
+    scene_statistics: in eval mode, normalise with the statistics of the voxels passed in (at
+    inference: the whole scene's active voxels at this level) instead of the running averages, and
+    leave the running averages untouched. Training mode is unaffected.
     """
 
+    scene_statistics: bool = False
+
     def forward(self, x: SparseVoxels) -> SparseVoxels:  # type: ignore[override]
-        return x.replace_feats(super().forward(x.feats))
+        if self.training or not self.scene_statistics or len(x.feats) < 2:
+            return x.replace_feats(super().forward(x.feats))
+        normalised = F.batch_norm(x.feats, None, None, self.weight, self.bias, training=True, eps=self.eps)
+        return x.replace_feats(normalised)
 
 
 class SparseReLU(nn.ReLU):

@@ -165,16 +165,18 @@ def save_json(obj: dict, path: Path) -> None:
     Path(path).write_text(json.dumps(obj, indent=2))
 
 
-def ship_weights(src: Path, dst: Path, half: bool = True) -> Path:
+def ship_weights(src: Path, dst: Path, half: bool = True, config_changes: dict | None = None) -> Path:
     """Copy trained weights to the shipped location (safetensors + JSON sidecar), optionally with
-    floating-point tensors stored as float16 (half the size; they load back into float32)."""
-    import torch
+    floating-point tensors stored as float16 (half the size; they load back into float32) and
+    inference-only config fields changed (e.g. {"sparse_norm_statistics": "scene"})."""
+    import dataclasses
+
     from safetensors import safe_open
     from safetensors.torch import save_file
 
     from ..model.weights import CONFIG_KEY, FORMAT, FORMAT_KEY, read_config, sidecar_path
 
-    config = read_config(src)
+    config = dataclasses.replace(read_config(src), **(config_changes or {}))
     tensors = {}
     with safe_open(str(src), framework="pt") as f:
         for key in f.keys():
