@@ -81,3 +81,21 @@ def test_scene_statistics_normalise_with_the_voxels_passed_in_and_keep_the_runni
     bn.scene_statistics = False
     expected_running = (x.feats - bn.running_mean) / torch.sqrt(bn.running_var + bn.eps) * bn.weight + bn.bias
     torch.testing.assert_close(bn(x).feats, expected_running, **TOL)
+
+
+def test_a_single_voxel_in_training_is_normalised_with_the_running_averages_and_still_trains():
+    # A training crop whose pruned level collapsed to one voxel: batch statistics do not exist.
+    x = sparse_input(seed=3)
+    one = SparseVoxels(x.coords[:1], x.feats[:1].clone())
+    bn = SparseBatchNorm(4).double()
+    with torch.no_grad():
+        bn.running_mean.copy_(torch.tensor([1.0, -1.0, 0.5, 2.0]))
+        bn.running_var.copy_(torch.tensor([4.0, 1.0, 0.25, 9.0]))
+    before = {k: v.clone() for k, v in bn.state_dict().items()}
+    y = bn.train()(one)
+    expected = (one.feats - bn.running_mean) / torch.sqrt(bn.running_var + bn.eps) * bn.weight + bn.bias
+    torch.testing.assert_close(y.feats, expected, **TOL)
+    for key, value in bn.state_dict().items():
+        torch.testing.assert_close(value, before[key], **TOL)
+    y.feats.sum().backward()
+    assert bn.weight.grad is not None and torch.all(bn.weight.grad != 0)

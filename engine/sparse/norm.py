@@ -18,14 +18,22 @@ class SparseBatchNorm(nn.BatchNorm1d):
     scene_statistics: in eval mode, normalise with the statistics of the voxels passed in (at
     inference: the whole scene's active voxels at this level) instead of the running averages, and
     leave the running averages untouched. Training mode is unaffected.
+
+    Fewer than two voxels have no batch statistics (a training crop whose pruned level collapsed):
+    they are normalised with the running averages, which stay as they are, so training goes on
+    with the same step on every DDP rank instead of failing.
     """
 
     scene_statistics: bool = False
 
     def forward(self, x: SparseVoxels) -> SparseVoxels:  # type: ignore[override]
-        if self.training or not self.scene_statistics or len(x.feats) < 2:
-            return x.replace_feats(super().forward(x.feats))
-        normalised = F.batch_norm(x.feats, None, None, self.weight, self.bias, training=True, eps=self.eps)
+        if len(x.feats) < 2:
+            normalised = F.batch_norm(x.feats, self.running_mean, self.running_var, self.weight, self.bias,
+                                      training=False, eps=self.eps)
+        elif self.training or not self.scene_statistics:
+            normalised = super().forward(x.feats)
+        else:
+            normalised = F.batch_norm(x.feats, None, None, self.weight, self.bias, training=True, eps=self.eps)
         return x.replace_feats(normalised)
 
 

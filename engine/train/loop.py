@@ -309,20 +309,9 @@ class Trainer:
         for group in self.optimizer.param_groups:
             group["lr"] = lr
         t0 = time.perf_counter()
-        skipped = 0
-        while True:
-            batch = self.next_batch(phase.batch_size)
-            try:
-                with torch.autocast("cuda", dtype=torch.float16, enabled=self.use_amp):
-                    losses = self.ddp(batch)
-                break
-            except ValueError as error:
-                # BatchNorm in training mode cannot normalise a single active voxel (a crop whose
-                # pruned level collapses to one voxel at the U-Net's coarsest stride). Such a crop
-                # carries no usable signal: draw the next one (deterministic, so resume stays exact).
-                if "Expected more than 1 value per channel" not in str(error) or skipped >= 10 or self.dist.enabled:
-                    raise
-                skipped += 1
+        batch = self.next_batch(phase.batch_size)
+        with torch.autocast("cuda", dtype=torch.float16, enabled=self.use_amp):
+            losses = self.ddp(batch)
         self.optimizer.zero_grad(set_to_none=True)
         self.scaler.scale(losses["loss"]).backward()
         self.scaler.step(self.optimizer)
@@ -332,8 +321,6 @@ class Trainer:
         rec.update({k: float(v.detach()) for k, v in losses.items()})
         rec.update(getattr(self.module, "last_stats", {}))
         rec["rooms"] = [i.get("room") for i in batch.info]
-        if skipped:
-            rec["skipped_batches"] = skipped
         return rec
 
     def run(self, until: Optional[int] = None, max_minutes: Optional[float] = None,
