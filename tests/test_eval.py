@@ -91,6 +91,24 @@ def test_trimming_to_observed_voxels():
     assert evaluate_mesh(pred, gt, observed=vol).prec == 1
 
 
+@pytest.mark.parametrize("tsdf_name", ["tsdf_gt.npz", "tsdf_gt_04.npz"])
+def test_eval_cli_on_a_room_folder_trims_with_its_ground_truth_tsdf(tmp_path, capsys, tsdf_name):
+    # tsdf_gt.npz comes from the renderer, tsdf_gt_04.npz from training's fusion (rooms rendered with --no-tsdf).
+    room = tmp_path / "room"
+    room.mkdir()
+    weight = np.zeros((10, 10, 10), np.float32)
+    weight[:5] = 1  # only x < 0.2 m observed
+    TsdfVolume(np.ones_like(weight), weight, np.zeros(3), 0.04, 0.12).save(room / tsdf_name)
+    gt = plane(0.1, 0.16)
+    write_ply(room / "mesh_gt.ply", gt.vertices, gt.faces)
+    pred = Mesh(np.concatenate([gt.vertices, gt.vertices + [0.25, 0, 0]]), np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]], np.int32))
+    write_ply(tmp_path / "pred.ply", pred.vertices, pred.faces)
+    assert engine_main(["eval", str(tmp_path / "pred.ply"), str(room), "--json", str(tmp_path / "m.json")]) == 0
+    assert "trimmed to observed voxels: prediction and ground truth" in capsys.readouterr().out
+    result = json.loads((tmp_path / "m.json").read_text())
+    assert result["observed"] == str(room / tsdf_name) and result["results"]["pred.ply"]["prec"] == 1
+
+
 def test_depth_metrics_hand_computed():
     pred = np.array([[1.0, 2.0], [0.0, 4.0]])
     true = np.array([[1.0, 1.0], [2.0, 5.0]])

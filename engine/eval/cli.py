@@ -24,7 +24,8 @@ COLUMNS = ("acc", "comp", "prec", "recall", "fscore")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("pred", type=Path, help="predicted mesh (.ply), world metres")
     parser.add_argument("gt", type=Path, help="ground-truth mesh (.ply), or a synthetic room folder "
-                        "(uses its mesh_gt.ply and, unless --observed is given, its tsdf_gt.npz)")
+                        "(uses its mesh_gt.ply and, unless --observed is given, its ground-truth TSDF: tsdf_gt.npz "
+                        "or tsdf_gt_04.npz)")
     parser.add_argument("--observed", type=Path, help="ground-truth TSDF (.npz): trim to its observed voxels")
     parser.add_argument("--no-trim-gt", action="store_true", help="trim only the prediction (Atlas does "
                         "not trim its scanned ground truth; our synthetic ground truth is the whole scene)")
@@ -43,8 +44,10 @@ def run(args: argparse.Namespace) -> int:
     if gt_path.is_dir():
         room = gt_path
         gt_path = room / "mesh_gt.ply"
-        if observed_path is None and (room / "tsdf_gt.npz").is_file():
-            observed_path = room / "tsdf_gt.npz"
+        if observed_path is None:
+            from ..train.dataset import gt_path as room_tsdf_path
+
+            observed_path = room_tsdf_path(room)  # the renderer's, or the one training fused
     for path in (args.pred, gt_path) + ((observed_path,) if observed_path else ()):
         if not path.is_file():
             raise VortxError(f"{path}: file not found")
