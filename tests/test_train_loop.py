@@ -79,6 +79,8 @@ def test_exact_resume(tmp_path, room):
     part = [r["loss"] for r in b.run(1)]
     ckpt = tmp_path / "run_b" / "checkpoint.pt"
     assert ckpt.is_file()
+    with open(tmp_path / "run_b" / "losses.jsonl", "a") as log:  # a crash after step 2, before its checkpoint
+        log.write(json.dumps({"step": 2, "loss": 0.0}) + "\n" + '{"step": 3, "lo')
     # scramble every RNG so only the checkpoint can restore them
     torch.manual_seed(123)
     np.random.seed(5)
@@ -91,6 +93,9 @@ def test_exact_resume(tmp_path, room):
         assert torch.equal(va, vc), k
     log = [json.loads(line) for line in (tmp_path / "run" / "losses.jsonl").read_text().splitlines()]
     assert [r["step"] for r in log] == [1, 2, 3, 4] and log[-1]["phase"] == 2
+    resumed_log = [json.loads(line) for line in (tmp_path / "run_b" / "losses.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in resumed_log] == [1, 2, 3, 4]  # each step once: the lost step 2 is the redone one
+    assert [r["loss"] for r in resumed_log] == full
 
 
 def test_phase2_unfreezes_trunk_but_not_batchnorm(tmp_path, room):

@@ -147,6 +147,23 @@ def make_optimizer(params, phase: PhaseConfig) -> torch.optim.Optimizer:
     return torch.optim.Adam(params, lr=phase.lr)
 
 
+def drop_logged_steps_after(log_path: Path, step: int) -> None:
+    """Remove the log lines of steps after `step`: after a resume from the checkpoint at `step`
+    they are trained again, and the log should hold each step once (the run that counts)."""
+    if not log_path.is_file():
+        return
+    def logged_step(line: str) -> Optional[int]:
+        try:
+            return int(json.loads(line)["step"])
+        except (ValueError, KeyError, TypeError):
+            return None  # e.g. a line cut short by a crash
+
+    lines = log_path.read_text().splitlines()
+    kept = [line for line in lines if (logged := logged_step(line)) is not None and logged <= step]
+    if kept != lines:
+        log_path.write_text("".join(line + "\n" for line in kept))
+
+
 def lr_at(phase: PhaseConfig, step_in_phase: int) -> float:
     """Linear warm-up from 1e-10 to lr over warmup_steps, then constant."""
     if phase.warmup_steps <= 0:
@@ -336,6 +353,7 @@ class Trainer:
         log = None
         if self.log_enabled:
             self.out.mkdir(parents=True, exist_ok=True)
+            drop_logged_steps_after(self.out / "losses.jsonl", self.step)
             log = open(self.out / "losses.jsonl", "a")
         records = []
         try:
