@@ -1,56 +1,62 @@
 #!/bin/sh
 # How the shipped default weights (weights/vortx-default.safetensors + .json) were produced.
 # Run from the repository root with the project venv. CPU only; every number below is what was used.
-# Total on the 2-core shared build machine: ~15 min rendering, ~29 min training (both models in
-# parallel, one thread each), ~10 min held-out evaluation. See MODEL.md for the results.
-# (In the actual run the held-out evaluations ran as separate per-model processes; same settings.)
+# Wall clock on the 2-core shared build machine: ~4 min rendering (two synth processes), 60 min
+# training (both models in parallel, one thread each), ~20 min held-out evaluation. Results: MODEL.md.
 set -eu
 PY=.venv/bin/python
+mkdir -p runs
 
 # 1. Synthetic rooms with Blender (Workbench with procedural textures, 160x120, 40 frames per room).
-#    Training rooms: seeds 0..15. Held-out rooms: seeds 1000..1002 (never used for training).
+#    Training rooms: seeds 0..63. Held-out rooms: seeds 1000..1007 (never used for training).
 #    Each room gets mesh_gt.ply and its 4 cm ground-truth TSDF (tsdf_gt.npz) from the renderer.
-$PY -m engine synth --rooms 3  --out data/synth/heldout --seed 1000 --frames 40 --resolution 160x120 --renderer workbench --quiet
-$PY -m engine synth --rooms 16 --out data/synth/train   --seed 0    --frames 40 --resolution 160x120 --renderer workbench --quiet
+SYNTH="--frames 40 --resolution 160x120 --renderer workbench --quiet"
+$PY -m engine synth --rooms 32 --out data/synth/train   --seed 0    $SYNTH &
+$PY -m engine synth --rooms 32 --out data/synth/train   --seed 32   $SYNTH &
+wait
+$PY -m engine synth --rooms 4  --out data/synth/heldout --seed 1000 $SYNTH &
+$PY -m engine synth --rooms 4  --out data/synth/heldout --seed 1004 $SYNTH &
+wait
 
-# 2. Ground-truth TSDFs for rooms that lack one (none here: the renderer writes them).
-$PY -m engine train configs/train_default.json --precompute-only
-
-# 3. Train VoRTX (transformer fusion + projective occupancy) and the averaging ablation on the same
-#    rooms, same crops (same seed), same steps: phase 1 300 steps + phase 2 150 steps, batch 2.
+# 2. VoRTX (transformer fusion + projective occupancy) and the averaging ablation on the same rooms,
+#    same crops (same seed), same steps: phase 1 2800 steps (mean pooling, frozen trunk, lr 1e-3) +
+#    phase 2 1100 steps (projective-occupancy pooling, trunk unfrozen except BatchNorm, lr 3e-4),
+#    batch 2, 6 views, 128x96 images, 48x48x24 crops, class-balanced occupancy BCE.
 $PY -m engine train configs/train_default.json --no-progress > runs/train_default.log 2>&1 &
 $PY -m engine train configs/train_average.json --no-progress > runs/train_average.log 2>&1 &
 wait
-# 3b. Both spec-exact runs collapse to "everything empty" at 8 cm after 450 CPU steps (MODEL.md), so
-#     phase 2 continues exactly from their step-450 checkpoints to step 700 with lr 3e-4 and the
-#     class-balanced occupancy BCE (configs/train_*_ft.json).
-for n in default average; do mkdir -p runs/vortx_${n}_ft; cp runs/vortx_$n/checkpoint.pt runs/vortx_${n}_ft/; done
-$PY -m engine train configs/train_default_ft.json --resume --no-progress > runs/train_default_ft.log 2>&1 &
-$PY -m engine train configs/train_average_ft.json --resume --no-progress > runs/train_average_ft.log 2>&1 &
-wait
 
-# 4. Held-out evaluation (Atlas metrics vs mesh_gt.ply, trimmed to observed voxels) of both models and
-#    the room-box floor, plus the picture in docs/.
+# 3. Both models with both inference rules for the 3D CNN's BatchNorm (the scene's own statistics,
+#    `sparse_norm_statistics: "scene"`, shipped; and the running averages from training; MODEL.md),
+#    evaluated on the held-out rooms: Atlas metrics vs mesh_gt.ply trimmed to observed voxels, depth
+#    metrics, and the room-box floor. (In the actual run each model's evaluation was a separate
+#    process, VoRTX's split over two by rooms; same settings.)
+for n in vortx_default average_default; do
+  $PY -c "from pathlib import Path; from engine.train.evaluate import ship_weights; \
+ship_weights(Path('runs/$n/weights.safetensors'), Path('runs/$n/weights_scene.safetensors'), half=False, \
+config_changes={'sparse_norm_statistics': 'scene'})"
+done
 EVAL="--image-size 128 --views 12 --frustum-depth 3.0 --max-room-size 7 7 3.5"
-$PY -m engine.train.evaluate --rooms data/synth/heldout --out runs/eval_450 $EVAL \
-    --weights "VoRTX=runs/vortx_default/weights.safetensors" "averaging=runs/vortx_average/weights.safetensors"
-$PY -m engine.train.evaluate --rooms data/synth/heldout --out runs/eval_700 $EVAL --no-box \
-    --weights "VoRTX=runs/vortx_default_ft/weights.safetensors" "averaging=runs/vortx_average_ft/weights.safetensors"
-# (the shipped picture has three panels: VoRTX, averaging, ground truth)
-$PY -c "from pathlib import Path; from engine.train.evaluate import render_side_by_side as r; from engine.mesh_io import read_ply; \
-r([read_ply('runs/eval_700/room_01000_VoRTX.ply'), read_ply('runs/eval_700/room_01000_averaging.ply'), \
-   read_ply('data/synth/heldout/room_01000/mesh_gt.ply')], ['VoRTX (held-out room_01000)', 'averaging ablation', \
-   'ground truth'], Path('docs/model_reconstruction.png'), size=(288, 216))"
+$PY -m engine.train.evaluate --rooms data/synth/heldout --out runs/eval_default $EVAL \
+    --weights "VoRTX=runs/vortx_default/weights_scene.safetensors" "averaging=runs/average_default/weights_scene.safetensors" \
+              "VoRTX-running=runs/vortx_default/weights.safetensors" "averaging-running=runs/average_default/weights.safetensors"
+# The picture: VoRTX, averaging, ground truth; ceilings clipped 0.3 m below the room's height.
+$PY -c "import json; from pathlib import Path; from engine.train.evaluate import render_side_by_side as r; from engine.mesh_io import read_ply; \
+room = Path('data/synth/heldout/room_01000'); h = json.loads((room / 'room.json').read_text())['dims'][2]; \
+r([read_ply('runs/eval_default/room_01000_VoRTX.ply'), read_ply('runs/eval_default/room_01000_averaging.ply'), \
+   read_ply(room / 'mesh_gt.ply')], ['VoRTX (held-out room_01000)', 'averaging ablation', 'ground truth'], \
+   Path('docs/model_reconstruction.png'), size=(288, 216), clip_above=h - 0.3)"
 
-# 5. Ship the VoRTX weights (float16 storage, loads into float32) where engine.model.weights.DEFAULT_WEIGHTS points.
+# 4. Ship the VoRTX weights (float16 storage, loads into float32) where engine.model.weights.DEFAULT_WEIGHTS
+#    points, with scene statistics: fewer points on the synthetic F-score than the running averages,
+#    better depth and accuracy, and the only one of the two that gives a surface on real photos (step 5).
 $PY -c "from pathlib import Path; from engine.train.evaluate import ship_weights; \
-ship_weights(Path('runs/vortx_default_ft/weights.safetensors'), Path('weights/vortx-default.safetensors'))"
+ship_weights(Path('runs/vortx_default/weights.safetensors'), Path('weights/vortx-default.safetensors'), \
+config_changes={'sparse_norm_statistics': 'scene'})"
 
-# 6. (Reported in MODEL.md, not shipped.) Both models trained on from step 700 to 1400 and evaluated
-#    the same way; both got worse on the held-out rooms.
-for n in default average; do mkdir -p runs/vortx_${n}_long; cp runs/vortx_${n}_ft/checkpoint.pt runs/vortx_${n}_long/; done
-$PY -m engine train configs/train_default_long.json --resume --no-progress > runs/train_default_long.log 2>&1 &
-$PY -m engine train configs/train_average_long.json --resume --no-progress > runs/train_average_long.log 2>&1 &
-wait
-$PY -m engine.train.evaluate --rooms data/synth/heldout --out runs/eval_1400 $EVAL --no-box \
-    --weights "VoRTX=runs/vortx_default_long/weights.safetensors" "averaging=runs/vortx_average_long/weights.safetensors"
+# 5. Real photos (no ground truth): poses and reconstruction of the fox capture, and the picture.
+$PY -m engine poses ../shared/data/fox/images --out /tmp/fox
+$PY -m engine reconstruct /tmp/fox --out /tmp/fox.ply
+$PY scripts/capture_view_picture.py /tmp/fox /tmp/fox.ply --frame 0018 --out docs/fox_reconstruction.png
+#    The same with the running averages, for MODEL.md's comparison (not shipped).
+$PY -m engine reconstruct /tmp/fox --out /tmp/fox_running.ply --weights runs/vortx_default/weights.safetensors
