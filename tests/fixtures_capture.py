@@ -248,6 +248,21 @@ def write_scannet(folder: Path, poses: Sequence[np.ndarray], K: np.ndarray, size
     return colors
 
 
+def write_room_scene(folder: Path, room) -> Path:
+    """A `engine.train.dataset.RoomData` (e.g. `box_room()`) written in the ScanNet layout with its
+    exact depth as 16-bit millimetres: what `python -m engine synth` writes, minus the ground truth."""
+    for name in ("color", "depth", "pose", "intrinsic"):
+        (folder / name).mkdir(parents=True, exist_ok=True)
+    for i, (image, depth, pose) in enumerate(zip(room.images, room.depths, room.poses)):
+        cv2.imwrite(str(folder / "color" / f"{i}.jpg"), image[..., ::-1])
+        cv2.imwrite(str(folder / "depth" / f"{i}.png"), np.round(depth * 1000).astype(np.uint16))
+        np.savetxt(folder / "pose" / f"{i}.txt", pose)
+    K4 = np.eye(4)
+    K4[:3, :3] = room.K[0]
+    np.savetxt(folder / "intrinsic" / "intrinsic_color.txt", K4)
+    return folder
+
+
 def write_video(path: Path, frames_rgb: Sequence[np.ndarray], fps: float) -> Path:
     """MPEG-4 (mp4v) video of RGB frames, all of one size."""
     height, width = frames_rgb[0].shape[:2]

@@ -189,19 +189,10 @@ def test_mesh_depth_metrics_against_analytic_depth():
 
 
 def test_eval_cli_depth_metrics_from_a_capture(tmp_path, capsys):
-    import cv2
+    from fixtures_capture import write_room_scene
 
     room, _ = _box_room_views()
-    scene = tmp_path / "scene"
-    for folder in ("color", "depth", "pose", "intrinsic"):
-        (scene / folder).mkdir(parents=True)
-    for i, (image, depth, pose) in enumerate(zip(room.images, room.depths, room.poses)):
-        cv2.imwrite(str(scene / "color" / f"{i}.jpg"), image[..., ::-1])
-        cv2.imwrite(str(scene / "depth" / f"{i}.png"), np.round(depth * 1000).astype(np.uint16))
-        np.savetxt(scene / "pose" / f"{i}.txt", pose)
-    K4 = np.eye(4)
-    K4[:3, :3] = room.K[0]
-    np.savetxt(scene / "intrinsic" / "intrinsic_color.txt", K4)
+    scene = write_room_scene(tmp_path / "scene", room)
     exact = box_mesh([0, 0, 0], [3.0, 2.6, 2.4])
     write_ply(tmp_path / "pred.ply", exact.vertices, exact.faces)
     rc = engine_main(["eval", str(tmp_path / "pred.ply"), str(tmp_path / "pred.ply"), "--depth", str(scene),

@@ -60,7 +60,10 @@ def run(args: argparse.Namespace) -> int:
                    "device": str(trainer.device), "world_size": trainer.dist.world_size}
         (trainer.out / "train_summary.json").write_text(json.dumps(summary, indent=2))
         if trainer.step < cfg.total_steps:
-            print(f"stopped at step {trainer.step} of {cfg.total_steps} (time limit); weights exported as they are", flush=True)
+            reason = f"--steps {args.steps}" if args.steps is not None and trainer.step >= args.steps else \
+                f"max_minutes {cfg.max_minutes}"
+            print(f"stopped at step {trainer.step} of {cfg.total_steps} ({reason}); weights exported as they are; "
+                  "--resume continues", flush=True)
         path = Path(args.export) if args.export else trainer.out / "weights.safetensors"
         trainer.export_weights(path)
         print(f"weights: {path}", flush=True)
