@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Optional
 import numpy as np
 
 from ..engine.capture import Capture, Frame
+from ..engine.capture.geometry import rigid_pose
 from ..engine.errors import CaptureError, PoseError
 
 if TYPE_CHECKING:
@@ -139,13 +140,15 @@ def _validate_pose(frame: Frame) -> None:
     pose = np.asarray(frame.pose, dtype=np.float64)
     if pose.shape != (4, 4) or not np.all(np.isfinite(pose)):
         raise PoseError(f"frame {frame.name}: the camera pose must be a finite 4x4 matrix (it contains NaN/inf or has shape {pose.shape})")
-    rotation = pose[:3, :3]
     if not np.allclose(pose[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
         raise PoseError(f"frame {frame.name}: the camera pose's last row must be [0, 0, 0, 1], got {pose[3].tolist()}")
     # A scaled or sheared rotation would become a scaled Blender camera whose projection no longer
-    # matches the photo; the loaders are supposed to hand us rigid poses.
-    if not np.allclose(rotation.T @ rotation, np.eye(3), atol=1e-4) or np.linalg.det(rotation) <= 0:
-        raise PoseError(f"frame {frame.name}: the camera pose's rotation is not a proper rotation matrix")
+    # matches the photo. The loaders make near-rotations exact; this is the same test they apply
+    # (one tolerance for the CLI, Blender and the batch script).
+    try:
+        rigid_pose(pose)
+    except ValueError as error:
+        raise PoseError(f"frame {frame.name}: the camera pose's rotation is not a proper rotation matrix ({error})") from error
 
 
 def plan_capture_cameras(capture: Capture) -> CameraPlan:

@@ -13,7 +13,9 @@ with non-zero distortion are undistorted into the cache (see `undistort.py`); an
 COLMAP stores world-to-camera (qvec, tvec) in OpenCV camera axes; frames get camera-to-world.
 The world frame is COLMAP's (arbitrary orientation and scale): `metric` is False unless the
 `metric=True` option says the model was scaled to metres; gravity alignment is the poses stage's job.
-Registered images whose photo is missing or whose pose is not finite are skipped with a warning.
+Registered images whose photo is missing or whose pose is not finite are skipped with a warning;
+quaternions that are not unit length (rounded by the writer) are normalised when within
+`geometry.ROTATION_TOLERANCE`, with one warning when they were off by more than rounding.
 """
 
 from __future__ import annotations
@@ -27,8 +29,9 @@ from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
 from .checks import finish_capture, inspect_images
 from .colmap_model import ColmapCamera, ColmapModel, model_kind, read_model
-from .geometry import (camera_to_world_from_world_to_camera, fit_intrinsics, pinhole, pose_problem,
-                       quaternion_to_rotation)
+from .colmap_model import ColmapImage
+from .geometry import (ROTATION_TOLERANCE, PoseRepairs, camera_to_world_from_world_to_camera, fit_intrinsics, pinhole,
+                       quaternion_deviation, quaternion_to_rotation)
 from .images import list_images
 from .model import Capture, Frame
 from .naming import name_list, natural_key
@@ -116,6 +119,19 @@ def _refuse_unsupported(model: ColmapModel, camera_ids: set[int]) -> None:
                                "reconstruct again with camera model OPENCV or PINHOLE.")
 
 
+def _camera_to_world(image: ColmapImage, repairs: PoseRepairs) -> np.ndarray:
+    """(4, 4) camera-to-world of a registered image; ValueError saying why its pose is unusable."""
+    if not (np.all(np.isfinite(image.qvec)) and np.all(np.isfinite(image.tvec))):
+        raise ValueError("non-finite values (inf/NaN)")
+    deviation = quaternion_deviation(image.qvec)
+    if deviation > ROTATION_TOLERANCE:
+        length = float(np.linalg.norm(image.qvec))
+        raise ValueError(f"its quaternion has length {length:.4g}, not 1: | |q|^2 - 1 | = {deviation:.2g}, more "
+                         f"than the {ROTATION_TOLERANCE:g} tolerated")
+    pose = camera_to_world_from_world_to_camera(quaternion_to_rotation(image.qvec), image.tvec)
+    return repairs.make_rigid(pose, image.name, deviation)
+
+
 def load_colmap(path: Path, options: LoadOptions, progress: Optional[ProgressFn] = None,
                 cancel: Optional[CancelToken] = None) -> Capture:
     """Capture (format "colmap") of the registered images of the COLMAP model in `path`."""
@@ -124,25 +140,29 @@ def load_colmap(path: Path, options: LoadOptions, progress: Optional[ProgressFn]
     images_folder = _images_folder(model, path, options)
 
     missing, bad_poses, entries = [], [], []
+    bad_pose_names: set[str] = set()  # registered, so not to be reported again as "not registered"
+    repairs = PoseRepairs()
     for image in sorted(model.images, key=lambda im: natural_key(im.name)):
         image_path = images_folder / image.name
-        ok_quaternion = np.all(np.isfinite(image.qvec)) and np.linalg.norm(image.qvec) > 1e-12
-        pose = (camera_to_world_from_world_to_camera(quaternion_to_rotation(image.qvec), image.tvec)
-                if ok_quaternion else np.full((4, 4), np.nan))
-        problem = pose_problem(pose)
-        if problem is not None:
-            bad_poses.append(f"{image.name} ({problem})")
-        elif not image_path.is_file():
-            missing.append(image.name)
-        else:
+        try:
+            pose = _camera_to_world(image, repairs)
+        except ValueError as error:
+            bad_poses.append(f"{image.name} ({error})")
+            bad_pose_names.add(image.name)
+            continue
+        if image_path.is_file():
             entries.append((image, image_path, pose))
+        else:
+            missing.append(image.name)
     if bad_poses:
         warnings.append(f"{len(bad_poses)} image(s) in {model.folder} skipped for an unusable pose: "
                         f"{name_list(bad_poses)}")
+    if repairs.warning():
+        warnings.append(f"{model.images_file}: {repairs.warning()}")
     if missing:
         warnings.append(f"{len(missing)} image(s) of the COLMAP model are missing from {images_folder}, skipped: "
                         f"{name_list(missing)}")
-    used = {image.name for image, _, _ in entries} | set(missing)
+    used = {image.name for image, _, _ in entries} | set(missing) | bad_pose_names
     unregistered = [p.name for p in list_images(images_folder) if p.name not in used
                     and p.relative_to(images_folder).as_posix() not in used]
     if unregistered and entries:

@@ -65,6 +65,10 @@ class ColmapModel:
     def cameras_file(self) -> Path:
         return self.folder / ("cameras.txt" if self.kind == "text" else "cameras.bin")
 
+    @property
+    def images_file(self) -> Path:
+        return self.folder / ("images.txt" if self.kind == "text" else "images.bin")
+
 
 def model_kind(folder: Path) -> str | None:
     """"binary" or "text" when `folder` holds a COLMAP model (binary wins when both exist, as in

@@ -7,7 +7,8 @@
 
 `metric` is True (ScanNet poses are in metres) unless the `metric=` option overrides it. Frames
 without a pose file, or whose matrix is not finite (ScanNet writes -inf where tracking was lost) or
-not a rotation, are skipped with one warning naming them. The depth images have their own
+not a rotation, are skipped with one warning naming them; rotations orthonormal only to a few digits
+are made exact (`geometry.PoseRepairs`). The depth images have their own
 intrinsics (`intrinsic/intrinsic_depth.txt`), which this loader does not read.
 """
 
@@ -21,7 +22,7 @@ import numpy as np
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
 from .checks import finish_capture, inspect_images
-from .geometry import parse_pose, pose_problem
+from .geometry import PoseRepairs, parse_pose
 from .images import list_images
 from .model import Capture, Frame
 from .naming import name_list
@@ -62,19 +63,16 @@ def load_scannet(path: Path, options: LoadOptions, progress: Optional[ProgressFn
     if not photos:
         raise CaptureError(f"{path / 'color'} holds no JPEG or PNG photos: this ScanNet export is empty.")
     no_pose, bad_pose, entries = [], [], []
+    repairs = PoseRepairs()
     for photo in photos:
         pose_file = path / "pose" / f"{photo.stem}.txt"
         if not pose_file.is_file():
             no_pose.append(photo.name)
             continue
         try:
-            pose = parse_pose(_read_matrix(pose_file))
+            pose = repairs.make_rigid(parse_pose(_read_matrix(pose_file)), pose_file.name)
         except (ValueError, OSError) as error:
             bad_pose.append(f"{pose_file.name} ({error})")
-            continue
-        problem = pose_problem(pose)
-        if problem is not None:
-            bad_pose.append(f"{pose_file.name} ({problem})")
             continue
         depth = path / "depth" / f"{photo.stem}.png"
         entries.append((photo, pose, depth if depth.is_file() else None))
@@ -86,6 +84,8 @@ def load_scannet(path: Path, options: LoadOptions, progress: Optional[ProgressFn
     if bad_pose:
         warnings.append(f"{len(bad_pose)} pose file(s) in {path / 'pose'} are unusable, frames skipped: "
                         f"{name_list(bad_pose)}")
+    if repairs.warning():
+        warnings.append(f"{path / 'pose'}: {repairs.warning()}")
     if not entries:
         raise CaptureError(f"no frame of {path} has a usable pose ({'; '.join(warnings)}): check the files in "
                            f"{path / 'pose'}.")

@@ -13,8 +13,9 @@ colmap2nerf.py re-orients it to Z up, other tools may leave it Y up; gravity ali
 stage's job. `metric` is False (these files have arbitrary scale) unless the file has a top-level
 `"metric": true` (written by our own tools) or the `metric=` option overrides it.
 
-Frames whose photo is missing or whose matrix is absent or not finite are skipped with one warning
-naming them (the instant-ngp fox lists 67 frames for 50 photos).
+Frames whose photo is missing or whose matrix is absent, not finite or not a rotation are skipped
+with one warning naming them (the instant-ngp fox lists 67 frames for 50 photos). Rotations that are
+orthonormal only to a few digits (trackers' files) are made exact (`geometry.PoseRepairs`).
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import numpy as np
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
 from .checks import finish_capture, inspect_images
-from .geometry import fit_intrinsics, opengl_to_opencv, parse_pose, pinhole, pose_problem
+from .geometry import PoseRepairs, fit_intrinsics, opengl_to_opencv, parse_pose, pinhole
 from .images import IMAGE_SUFFIXES
 from .model import Capture, Frame
 from .naming import name_list
@@ -123,19 +124,16 @@ def load_transforms(path: Path, options: LoadOptions, progress: Optional[Progres
     shared = {key: data[key] for key in _INTRINSIC_KEYS if key in data}
 
     skipped_missing, skipped_pose, entries = [], [], []
+    repairs = PoseRepairs()
     for index, entry in enumerate(data["frames"]):
         label = str(entry.get("file_path", f"frame {index}")) if isinstance(entry, dict) else f"frame {index}"
         if not isinstance(entry, dict) or "transform_matrix" not in entry:
             skipped_pose.append(f"{label} (no transform_matrix)")
             continue
         try:
-            pose = parse_pose(entry["transform_matrix"])
+            pose = repairs.make_rigid(parse_pose(entry["transform_matrix"]), label)
         except (TypeError, ValueError) as error:
             skipped_pose.append(f"{label} ({error})")
-            continue
-        problem = pose_problem(pose)
-        if problem is not None:
-            skipped_pose.append(f"{label} ({problem})")
             continue
         image_path = _resolve_image(json_path.parent, str(entry.get("file_path", "")))
         if image_path is None:
@@ -151,6 +149,8 @@ def load_transforms(path: Path, options: LoadOptions, progress: Optional[Progres
     if skipped_pose:
         warnings.append(f"{len(skipped_pose)} frame(s) in {json_path.name} have no usable pose, skipped: "
                         f"{name_list(skipped_pose)}")
+    if repairs.warning():
+        warnings.append(f"{json_path.name}: {repairs.warning()}")
     if not entries:
         reasons = "; ".join(warnings) or "its frames list is empty"
         raise CaptureError(f"no usable frame in {json_path}: {reasons}. Check the file_path entries and matrices.")
