@@ -18,7 +18,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from engine.capture import load_capture, load_image  # noqa: E402
 from engine.mesh_io import read_ply  # noqa: E402
 from engine.meshops import subdivide  # noqa: E402
-from engine.recon.colour import render_depth  # noqa: E402
+from engine.geometry.depth_render import render_depth  # noqa: E402
 from engine.train.evaluate import shade  # noqa: E402
 
 

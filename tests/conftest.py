@@ -64,7 +64,7 @@ def empty_scene(blender):
 
 def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)):
     """Camera-to-world (4, 4) float64 in OpenCV axes (x right, y down, z forward) looking at `target`."""
-    from fixtures_capture import look_at
+    from engine.geometry.cameras import look_at
 
     return look_at(eye, target, up)
 

@@ -23,6 +23,8 @@ import cv2
 import numpy as np
 from PIL import ExifTags, Image
 
+from engine.geometry.cameras import look_along, look_at, project_points
+
 # COLMAP camera model ids (src/colmap/sensor/models.h), for the binary writer.
 COLMAP_MODEL_IDS = {"SIMPLE_PINHOLE": 0, "PINHOLE": 1, "SIMPLE_RADIAL": 2, "RADIAL": 3, "OPENCV": 4,
                     "OPENCV_FISHEYE": 5, "FULL_OPENCV": 6, "FISHEYE": 15}
@@ -78,27 +80,9 @@ def intrinsics(focal: float, width: int, height: int, fy: Optional[float] = None
     return np.array([[focal, 0.0, width / 2.0], [0.0, fy or focal, height / 2.0], [0.0, 0.0, 1.0]])
 
 
-def look_at(eye: Sequence[float], target: Sequence[float], up: Sequence[float] = (0.0, 0.0, 1.0)) -> np.ndarray:
-    """Camera-to-world (4, 4), OpenCV axes: +z towards `target`, +y roughly along -`up`."""
-    eye, target, up = (np.asarray(v, dtype=np.float64) for v in (eye, target, up))
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, up)
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = x, y, z, eye
-    return pose
-
-
 def look_yaw_pitch(position: Sequence[float], yaw: float, pitch: float) -> np.ndarray:
     """Camera-to-world (4, 4), OpenCV axes, looking along yaw (about +Z) and pitch (up positive)."""
-    forward = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)])
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, np.cross(forward, right), forward, position
-    return pose
+    return look_along(position, [np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), np.sin(pitch)])
 
 
 def ring_poses(count: int, radius: float = 2.0, height: float = 1.5,
@@ -110,10 +94,8 @@ def ring_poses(count: int, radius: float = 2.0, height: float = 1.5,
 
 def project(K: np.ndarray, camera_to_world: np.ndarray, point: Sequence[float]) -> np.ndarray:
     """Pixel (2,) of a world point through a pinhole camera."""
-    world_to_camera = np.linalg.inv(camera_to_world)
-    p = world_to_camera[:3, :3] @ np.asarray(point, dtype=np.float64) + world_to_camera[:3, 3]
-    uvw = K @ p
-    return uvw[:2] / uvw[2]
+    u, v, _ = project_points(np.asarray(point, dtype=np.float64)[None], K, camera_to_world)
+    return np.array([u[0], v[0]])
 
 
 def distort_normalized(xy: np.ndarray, k1: float = 0.0, k2: float = 0.0, p1: float = 0.0,

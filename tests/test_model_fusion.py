@@ -6,8 +6,8 @@ import math
 
 import pytest
 import torch
-from conftest import look_at_pose
 
+from engine.geometry.cameras import look_at as camera_look_at
 from engine.model import VortxConfig, VortxNet
 from engine.model.fusion import ViewAttention, masked_mean_pool, softmax_null_pool
 
@@ -19,7 +19,7 @@ pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def look_at(eye, target) -> torch.Tensor:
-    return torch.from_numpy(look_at_pose(eye, target))
+    return torch.from_numpy(camera_look_at(eye, target))
 
 
 def scene(num_views: int = 4):
@@ -182,8 +182,8 @@ def test_averaging_ablation_is_a_masked_mean_without_projective_occupancy():
         out = net.fuse(2, points, feats, K, poses, (H, W))
     assert out.proj_occ_logits is None
     # Pre-LayerNorm feature = mean of the bilinear samples over valid views.
-    from engine.model.backprojection import project_points, sample_features
+    from engine.model.backprojection import project_to_feature_maps, sample_features
 
-    projection = project_points(points, K, poses, 4, (H // 4, W // 4))
+    projection = project_to_feature_maps(points, K, poses, 4, (H // 4, W // 4))
     expected = masked_mean_pool(sample_features(feats, projection.grid), projection.valid)
     torch.testing.assert_close(out.features, net.layer_norms["fine"](expected).detach())

@@ -7,8 +7,9 @@ import math
 import pytest
 import torch
 
-from engine.model.backprojection import project_points, sample_features
-from engine.model.view_encoding import ENCODING_CHANNELS, encode_directions, ray_directions, scale_intrinsics
+from engine.model.backprojection import project_to_feature_maps, sample_features
+from engine.geometry.cameras import intrinsics_at_stride
+from engine.model.view_encoding import ENCODING_CHANNELS, encode_directions, ray_directions
 
 H, W = 48, 64
 K = torch.tensor([[50.0, 0.0, 31.0], [0.0, 55.0, 23.0], [0.0, 0.0, 1.0]])
@@ -54,7 +55,7 @@ def test_back_projecting_a_known_point_samples_the_expected_feature_pixel():
     targets = [(5.0, 7.0), (9.25, 3.5)]
     points = torch.stack([world_point(pose, (u * stride, v * stride), depth) for (u, v), depth in zip(targets, (2.0, 3.7))])
 
-    projection = project_points(points, K[None], pose[None], stride, (h, w))
+    projection = project_to_feature_maps(points, K[None], pose[None], stride, (h, w))
     sampled = sample_features(feats, projection.grid)  # (M, V=1, 3)
 
     for i, (u, v) in enumerate(targets):
@@ -73,13 +74,13 @@ def test_projection_validity_inside_image_and_in_front_only():
     last = world_point(pose, ((w - 1) * stride - 0.2, (h - 1) * stride - 0.2), 2.0)
     outside = world_point(pose, ((w - 1) * stride + 1.0, 10.0), 2.0)
     behind = world_point(pose, (20.0, 20.0), -2.0)  # projects inside the image, but behind the camera
-    projection = project_points(torch.stack([first, last, outside, behind]), K[None], pose[None], stride, (h, w))
+    projection = project_to_feature_maps(torch.stack([first, last, outside, behind]), K[None], pose[None], stride, (h, w))
     assert projection.valid[:, 0].tolist() == [True, True, False, False]
     assert projection.depth[3, 0] < 0
 
 
 def test_intrinsics_scaled_without_half_pixel_shift():
-    K_s = scale_intrinsics(K, 16)
+    K_s = intrinsics_at_stride(K, 16)
     torch.testing.assert_close(K_s[0], K[0] / 16)
     torch.testing.assert_close(K_s[1], K[1] / 16)
     torch.testing.assert_close(K_s[2], K[2])
@@ -90,7 +91,7 @@ def test_ray_through_the_principal_point_is_the_camera_axis():
     stride = 1
     K_int = K.clone()
     K_int[0, 2], K_int[1, 2] = 31.0, 23.0  # integer principal point -> a pixel centre
-    rays = ray_directions(scale_intrinsics(K_int, stride)[None], pose[None].float(), H, W)
+    rays = ray_directions(intrinsics_at_stride(K_int, stride)[None], pose[None].float(), H, W)
     assert rays.shape == (1, 3, H, W)
     torch.testing.assert_close(rays[0, :, 23, 31], pose[:3, 2].float(), atol=1e-6, rtol=0)
     torch.testing.assert_close(rays.norm(dim=1), torch.ones(1, H, W), atol=1e-6, rtol=0)

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 import torch
-from conftest import look_at_pose
 
+from engine.geometry.cameras import look_at as camera_look_at
 from engine.errors import WeightsError
 from engine.model import LevelOutput, VortxBatch, VortxConfig, VortxNet, load_weights, read_config, save_weights
 from engine.model.coarse_to_fine import Upsampler, subsample_per_sample
@@ -23,7 +23,7 @@ pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def look_at(eye, target) -> torch.Tensor:
-    return torch.from_numpy(look_at_pose(eye, target))
+    return torch.from_numpy(camera_look_at(eye, target))
 
 
 def tiny_batch(batch_size: int = 2, num_views: int = 3, crop_shape=(16, 16, 8)) -> VortxBatch:

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from engine.mesh_io import Mesh
-from engine.recon.colour import UNSEEN_GREY, ColourView, colour_vertices, render_depth
-from engine.recon.synthetic import look_pose
+from engine.geometry.depth_render import render_depth
+from engine.recon.colour import UNSEEN_GREY, ColourView, colour_vertices
+from engine.geometry.cameras import look_along as look_pose
 
 K = np.array([[100.0, 0, 50], [0, 100, 50], [0, 0, 1]])  # 100 x 100 image, half-angle 26.6 deg
 SIZE = (100, 100)

@@ -11,7 +11,7 @@ import pytest
 
 from engine.recon.bounds import SceneBounds, scene_bounds
 from engine.recon.keyframes import select_keyframes
-from engine.recon.synthetic import look_pose
+from engine.geometry.cameras import look_along as look_pose
 from engine.recon.tiles import BOX_EDGES, TileState, make_tiles, tile_grid
 from engine.recon.view_selection import select_views_for_tile, tile_coarse_points
 

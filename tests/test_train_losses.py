@@ -1,10 +1,13 @@
-"""Losses (engine.train.losses): masks, log-L1 TSDF, projective occupancy over the whole batch."""
+"""Losses (engine.train.losses) and projective-occupancy targets (engine.tsdf.targets): masks, log-L1
+TSDF, projective occupancy over the whole batch."""
 
 from __future__ import annotations
 
 import torch
 
+from engine.geometry.cameras import project_points_torch
 from engine.train import losses as L
+from engine.tsdf.targets import projective_occupancy
 
 
 def _cams(B, V, H=24, W=32):
@@ -21,12 +24,20 @@ def test_projective_occupancy_covers_every_sample():
     points = [torch.cat([torch.rand(M, 2, generator=g) - 0.5, 1.8 + 0.4 * torch.rand(M, 1, generator=g)], 1)
               for _ in range(B)]
     logits = [torch.randn(M, V, generator=g) for _ in range(B)]
-    base = L.projective_occupancy_loss(logits, points, K, poses, depths, trunc=0.12)
-    perturbed = [logits[0], logits[1] + 3.0]  # change sample 1 only
-    assert not torch.isclose(base, L.projective_occupancy_loss(perturbed, points, K, poses, depths, 0.12))
+    projections = [project_points_torch(points[b], K[b], poses[b]) for b in range(B)]
+    pixels = torch.cat([torch.stack([u, v], -1) for u, v, _ in projections])
+    z = torch.cat([z for _, _, z in projections])
+    sample = torch.arange(B).repeat_interleave(M)
+    valid = torch.ones(B * M, V, dtype=torch.bool)
+
+    def loss(lg):
+        return L.projective_occupancy_loss_batch(torch.cat(lg), sample, pixels, z, valid, depths, 0.12)
+
+    base = loss(logits)
+    assert not torch.isclose(base, loss([logits[0], logits[1] + 3.0]))  # sample 1 counts too
     # and the loss is the BCE over the union of both samples' pairs
-    t0, s0 = L.projective_occupancy_targets(points[0], K[0], poses[0], depths[0], 0.12)
-    t1, s1 = L.projective_occupancy_targets(points[1], K[1], poses[1], depths[1], 0.12)
+    t0, s0 = projective_occupancy(points[0], K[0], poses[0], depths[0], 0.12)
+    t1, s1 = projective_occupancy(points[1], K[1], poses[1], depths[1], 0.12)
     ref = torch.nn.functional.binary_cross_entropy_with_logits(
         torch.cat([logits[0][s0], logits[1][s1]]), torch.cat([t0[s0], t1[s1]]))
     assert torch.allclose(base, ref)
@@ -35,13 +46,11 @@ def test_projective_occupancy_covers_every_sample():
 def test_projective_targets():
     K, poses, depths = _cams(1, 1)
     pts = torch.tensor([[0.0, 0.0, 2.05], [0.0, 0.0, 1.5], [0.0, 0.0, -1.0], [0.0, 0.0, 2.0]])
-    depths[0, 0, 12, 16] = 0.0  # the centre pixel has no depth -> [3] unsupervised
-    depths[0, 0, 12, 16] = 2.0
-    t, s = L.projective_occupancy_targets(pts, K[0], poses[0], depths[0], 0.12)
+    t, s = projective_occupancy(pts, K[0], poses[0], depths[0], 0.12)
     assert t[:, 0].tolist() == [1.0, 0.0, 0.0, 1.0]
     assert s[:, 0].tolist() == [True, True, False, True]
-    depths[0, 0, 12, 16] = 0.0
-    _, s = L.projective_occupancy_targets(pts, K[0], poses[0], depths[0], 0.12)
+    depths[0, 0, 12, 16] = 0.0  # the centre pixel has no depth -> nothing there is supervised
+    _, s = projective_occupancy(pts, K[0], poses[0], depths[0], 0.12)
     assert not s.any()
 
 

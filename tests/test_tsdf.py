@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from engine.geometry.cameras import look_along as look_pose
 from engine.tsdf import (
     TsdfVolume,
     frustum_bounds,
@@ -19,20 +20,6 @@ from engine.tsdf import (
 
 ROOM = np.array([4.0, 3.0, 2.5])  # box room [0, 4] x [0, 3] x [0, 2.5]
 VOXEL, TRUNC = 0.04, 0.12
-
-
-def look_pose(centre, forward, up=(0.0, 0.0, 1.0)) -> np.ndarray:
-    """camera-to-world (4, 4), OpenCV axes, looking along `forward`."""
-    z = np.asarray(forward, float) / np.linalg.norm(forward)
-    x = np.cross(z, up)
-    if np.linalg.norm(x) < 1e-6:  # looking straight up or down
-        x = np.array([1.0, 0.0, 0.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, y, z], axis=1)
-    pose[:3, 3] = centre
-    return pose
 
 
 def box_depth(pose: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -148,6 +135,6 @@ def test_projective_occupancy_band_is_three_voxels():
     depth = torch.full((H, W), 2.0)
     depth[:, :5] = 0  # missing depth on the left
     pts = torch.tensor([[0.0, 0, 2.1], [0.0, 0, 1.5], [0.0, 0, -2.0], [-1.5, 0, 2.0], [0.0, 0, 2.2]])
-    target, valid = projective_occupancy(pts, depth, K, pose, voxel_size=0.04)
-    assert valid.tolist() == [True, True, False, False, True]
-    assert target.tolist() == [True, False, False, False, False]
+    target, valid = projective_occupancy(pts, K[None], pose[None], depth[None], trunc=3 * 0.04)
+    assert valid[:, 0].tolist() == [True, True, False, False, True]
+    assert target[:, 0].bool().tolist() == [True, False, False, False, False]

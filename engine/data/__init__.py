@@ -6,11 +6,11 @@ The only engine package allowed to import bpy, and only lazily inside the render
 
 from .geometry import MeshPart, merge_parts, room_parts
 from .room import RoomSpec, generate_room
-from .trajectory import look_at, scan_trajectory
+from .trajectory import scan_trajectory
 from .synth import SynthOptions, room_name, room_poses, synthesize_room, synthesize_rooms
 from .render import RenderSettings
 
 __all__ = [
-    "MeshPart", "RenderSettings", "RoomSpec", "SynthOptions", "generate_room", "look_at", "merge_parts",
+    "MeshPart", "RenderSettings", "RoomSpec", "SynthOptions", "generate_room", "merge_parts",
     "room_name", "room_parts", "room_poses", "scan_trajectory", "synthesize_room", "synthesize_rooms",
 ]

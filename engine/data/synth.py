@@ -101,11 +101,12 @@ def synthesize_room(
 
     if options.write_tsdf:
         from ..tsdf import fuse_ground_truth
+        from .room_folders import SYNTH_GT_FILE
 
         depths = _LazyDepths(work, options.frames)
         volume = fuse_ground_truth(depths, K, poses, options.voxel_size, options.trunc, options.depth_cap,
                                    cancel=cancel)
-        volume.save(work / "tsdf_gt.npz")
+        volume.save(work / SYNTH_GT_FILE)
 
     stats = {
         "build_s": round(t_built - t_start, 3),

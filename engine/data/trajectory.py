@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..geometry.cameras import look_along
+
 if TYPE_CHECKING:
     from .room import RoomSpec
 
@@ -55,20 +57,6 @@ def make_path_loop(rng: np.random.Generator, length: float, width: float) -> Pat
     return PathLoop([float(c) for c in center], [float(a) for a in half - margin], float(rng.uniform(2.5, 4.0)), wobble)
 
 
-def look_at(position: np.ndarray, forward: np.ndarray, roll: float = 0.0) -> np.ndarray:
-    """camera-to-world (4, 4) at `position` looking along `forward`, image x kept level, then rolled."""
-    z = np.asarray(forward, np.float64) / np.linalg.norm(forward)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x = x / np.linalg.norm(x) if np.linalg.norm(x) > 1e-9 else np.array([1.0, 0.0, 0.0])
-    y = np.cross(z, x)  # points down in the image when x is level
-    c, s = np.cos(roll), np.sin(roll)
-    x, y = c * x + s * y, -s * x + c * y
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([x, y, z], axis=1)
-    pose[:3, 3] = position
-    return pose
-
-
 def scan_trajectory(spec: "RoomSpec", n_frames: int, rng: np.random.Generator) -> np.ndarray:
     """(n_frames, 4, 4) camera-to-world poses of a handheld walk around `spec`'s path loop."""
     if n_frames < 1:
@@ -77,7 +65,7 @@ def scan_trajectory(spec: "RoomSpec", n_frames: int, rng: np.random.Generator) -
     yaw, pitch = _look_angles(spec, positions, rng)
     roll = _smooth_noise(rng, n_frames, amplitude=np.radians(3.0), correlation=6.0)
     forward = np.stack([np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)], axis=1)
-    return np.stack([look_at(p, f, r) for p, f, r in zip(positions, forward, roll)])
+    return np.stack([look_along(p, f, roll=r) for p, f, r in zip(positions, forward, roll)])
 
 
 def _walk_positions(spec: "RoomSpec", n: int, rng: np.random.Generator) -> np.ndarray:

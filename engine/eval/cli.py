@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
         room = gt_path
         gt_path = room / "mesh_gt.ply"
         if observed_path is None:
-            from ..train.dataset import gt_path as room_tsdf_path
+            from ..data.room_folders import gt_path as room_tsdf_path
 
             observed_path = room_tsdf_path(room)  # the renderer's, or the one training fused
     for path in (args.pred, gt_path) + ((observed_path,) if observed_path else ()):

@@ -60,7 +60,7 @@ def mesh_depth_metrics(
     metres with 0 = missing). Pixels the mesh does not cover count as missing predictions.
     """
     from ..meshops import subdivide
-    from ..recon.colour import render_depth
+    from ..geometry.depth_render import render_depth
 
     # The rasteriser drops triangles that cross a camera's near plane and caps the samples of huge
     # ones; metre-long triangles (a box room, a ground-truth wall) must be split first.

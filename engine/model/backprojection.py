@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
-from .view_encoding import scale_intrinsics
+from ..geometry.cameras import intrinsics_at_stride, project_points_torch
 
-# Grid value for projections that are not finite (z == 0): outside [-1, 1], hence invalid.
+# Grid value for projections that are not finite: outside [-1, 1], hence invalid.
 OUTSIDE = -2.0
 
 
@@ -37,7 +37,7 @@ class Projection:
     valid: torch.Tensor
 
 
-def project_points(
+def project_to_feature_maps(
     points: torch.Tensor,
     K: torch.Tensor,
     cam_to_world: torch.Tensor,
@@ -46,14 +46,8 @@ def project_points(
 ) -> Projection:
     """points (M, 3) world metres; K (V, 3, 3) in image pixels; cam_to_world (V, 4, 4); feature map
     (H_f, W_f) at 1/stride of the image -> Projection."""
-    dtype = points.dtype
-    # Invert in float64: poses far from the origin lose millimetres in a float32 inverse.
-    world_to_cam = torch.linalg.inv(cam_to_world.to(torch.float64)).to(dtype)
-    K_f = scale_intrinsics(K.to(dtype), stride)
-    cam = torch.einsum("vij,mj->mvi", world_to_cam[:, :3, :3], points) + world_to_cam[:, :3, 3]
-    z = cam[..., 2]
-    uvw = torch.einsum("vij,mvj->mvi", K_f, cam)
-    uv = uvw[..., :2] / z[..., None]  # feature pixels
+    u, v, z = project_points_torch(points, intrinsics_at_stride(K.to(points.dtype), stride), cam_to_world)
+    uv = torch.stack([u, v], dim=-1)  # feature pixels
     h, w = feature_hw
     # max(.., 1) keeps a 1-pixel-wide map finite; its only valid coordinate is then 0 -> -1.
     scale = uv.new_tensor([2.0 / max(w - 1, 1), 2.0 / max(h - 1, 1)])

@@ -14,15 +14,10 @@ import math
 import torch
 from torch import nn
 
+from ..geometry.cameras import intrinsics_at_stride
+
 NUM_FREQUENCIES = 4
 ENCODING_CHANNELS = 3 + 6 * NUM_FREQUENCIES  # 27
-
-
-def scale_intrinsics(K: torch.Tensor, stride: int) -> torch.Tensor:
-    """K (..., 3, 3) in image pixels -> K of a map downsampled by `stride` (rows 0-1 divided; no half-pixel shift)."""
-    K = K.clone()
-    K[..., :2, :] = K[..., :2, :] / stride
-    return K
 
 
 def ray_directions(K: torch.Tensor, cam_to_world: torch.Tensor, height: int, width: int) -> torch.Tensor:
@@ -68,5 +63,5 @@ class ViewDirectionEncoder(nn.Module):
     def forward(self, feats: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor, stride: int) -> torch.Tensor:
         """feats (V, C, h, w); K (V, 3, 3) in image pixels; cam_to_world (V, 4, 4) -> (V, C, h, w)."""
         h, w = feats.shape[-2:]
-        rays = ray_directions(scale_intrinsics(K.to(feats.dtype), stride), cam_to_world, h, w)
+        rays = ray_directions(intrinsics_at_stride(K.to(feats.dtype), stride), cam_to_world, h, w)
         return self.conv(torch.cat([feats, encode_directions(rays)], dim=1))

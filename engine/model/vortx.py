@@ -24,7 +24,7 @@ from torch import nn
 from ..sparse import SparseBatchNorm, SparseConv3d, SparseVoxels
 from .backbone_efficientnet import EfficientNetLite0Pyramid
 from .backbone_mnasnet import MnasNetPyramid
-from .backprojection import Projection, project_points, sample_features
+from .backprojection import Projection, project_to_feature_maps, sample_features
 from .coarse_to_fine import Upsampler, subsample_per_sample
 from .config import LEVEL_IMAGE_STRIDES, LEVEL_NAMES, VortxConfig
 from .fpn import FeaturePyramid
@@ -155,7 +155,7 @@ class VortxNet(nn.Module):
         self, name: str, points: torch.Tensor, feats: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor, stride: int
     ) -> tuple[torch.Tensor, torch.Tensor | None, Projection]:
         """points (m, 3) -> pooled (m, C) before LayerNorm, proj-occ logits (m, V) | None, the projection."""
-        projection = project_points(points, K, cam_to_world, stride, tuple(feats.shape[-2:]))
+        projection = project_to_feature_maps(points, K, cam_to_world, stride, tuple(feats.shape[-2:]))
         # Points no view sees pool to exactly 0 under both pooling rules, so the transformer only
         # runs on the seen ones; their per-view logits (never valid, never supervised) stay 0.
         seen = torch.nonzero(projection.valid.any(dim=1)).view(-1)

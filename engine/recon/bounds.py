@@ -14,6 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..geometry.cameras import frustum_corners
+
 
 @dataclass(frozen=True)
 class SceneBounds:
@@ -24,17 +26,6 @@ class SceneBounds:
     @property
     def size(self) -> np.ndarray:
         return self.maximum - self.minimum
-
-
-def frustum_corners(K: np.ndarray, pose: np.ndarray, width: int, height: int, depth: float) -> np.ndarray:
-    """World positions (4, 3) of the image corners at planar depth `depth`.
-
-    K: (3, 3) pixels; pose: (4, 4) camera-to-world, OpenCV axes.
-    """
-    pixels = np.array([[0, 0, 1], [width, 0, 1], [0, height, 1], [width, height, 1]], dtype=np.float64)
-    rays = pixels @ np.linalg.inv(K).T  # (4, 3) with z = 1: planar depth, like a depth map
-    points_cam = rays * depth
-    return points_cam @ pose[:3, :3].T + pose[:3, 3]
 
 
 def scene_bounds(

@@ -24,7 +24,8 @@ from ..model.outputs import tsdf_from_logits
 from .colour import ColourView, colour_vertices
 from .features import FeatureCache, encode_keyframes, keyframe_image_size
 from .fusion import fuse_tile
-from .images import load_resized, resized_size, scale_intrinsics
+from ..geometry.cameras import scale_intrinsics
+from .images import load_resized, resized_size
 from .memory import PeakMemory
 from .mesh import extract_mesh
 from .network import load_network

@@ -16,7 +16,8 @@ import torch
 
 from ..capture import Frame
 from ..jobs import CancelToken, ProgressCallback, check, report
-from .images import load_resized, resized_size, scale_intrinsics
+from ..geometry.cameras import scale_intrinsics
+from .images import load_resized, resized_size
 
 
 @dataclass

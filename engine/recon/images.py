@@ -3,7 +3,7 @@
 The 2D CNN was trained on 640 x 480 images, so photos of any size are resized to a long side of
 `long_side` pixels (aspect ratio kept, each side rounded to a multiple of 16 so the FPN's stride-16
 map upsamples exactly onto the stride-8 and stride-4 maps). Rounding makes the two axes scale by
-slightly different factors, so K is scaled per axis (no half-pixel correction, like the official code).
+slightly different factors, so K is scaled per axis (`engine.geometry.cameras.scale_intrinsics`).
 """
 
 from __future__ import annotations
@@ -22,12 +22,6 @@ def resized_size(width: int, height: int, long_side: int, multiple: int = SIZE_M
     w = max(multiple, int(round(width * scale / multiple)) * multiple)
     h = max(multiple, int(round(height * scale / multiple)) * multiple)
     return w, h
-
-
-def scale_intrinsics(K: np.ndarray, from_size: tuple[int, int], to_size: tuple[int, int]) -> np.ndarray:
-    """K (3, 3) for an image resized from (w, h) to (w', h')."""
-    sx, sy = to_size[0] / from_size[0], to_size[1] / from_size[1]
-    return np.diag([sx, sy, 1.0]) @ np.asarray(K, dtype=np.float64)
 
 
 def load_resized(frame: Frame, size: tuple[int, int]) -> np.ndarray:

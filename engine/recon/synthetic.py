@@ -13,21 +13,10 @@ import cv2
 import numpy as np
 
 from ..capture import Capture, Frame
+from ..geometry.cameras import look_along
 
 CELL = 0.25  # texture cell size in metres
 PALETTE = 64  # texture repeats every 64 cells
-
-
-def look_pose(centre: np.ndarray, forward: np.ndarray) -> np.ndarray:
-    """Camera-to-world (4, 4), OpenCV axes, at `centre` looking along `forward`, world Z up, no roll."""
-    f = np.asarray(forward, dtype=np.float64)
-    f = f / np.linalg.norm(f)
-    right = np.cross(f, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(f, right)
-    pose = np.eye(4)
-    pose[:3, 0], pose[:3, 1], pose[:3, 2], pose[:3, 3] = right, down, f, centre
-    return pose
 
 
 def intrinsics(width: int, height: int, fov_deg: float) -> np.ndarray:
@@ -47,7 +36,7 @@ def circle_poses(frames: int, centre: np.ndarray, radius: float, pitch_deg: floa
         heading = angle + np.pi / 2 - np.deg2rad(outward_deg)
         pitch = np.deg2rad(pitch_deg)
         forward = np.array([np.cos(heading) * np.cos(pitch), np.sin(heading) * np.cos(pitch), np.sin(pitch)])
-        poses.append(look_pose(position, forward))
+        poses.append(look_along(position, forward))
     return np.stack(poses)
 
 

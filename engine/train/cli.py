@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from ..errors import VortxError
     from .config import load_config
-    from .dataset import find_rooms, gt_path, precompute_room
+    from ..data.room_folders import find_rooms, gt_path, precompute_room
     from .loop import CHECKPOINT, Trainer
 
     cfg = load_config(args.config)

@@ -34,10 +34,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ..data.room_folders import find_rooms, gt_path, precompute_room  # noqa: F401 (re-exported until the split)
 from ..errors import VortxError
+from ..geometry.cameras import look_along, project_points, scale_intrinsics
 
-GT_FILE = "tsdf_gt_04.npz"  # written by precompute_room when the renderer did not write one
-SYNTH_GT_FILE = "tsdf_gt.npz"  # written by `python -m engine synth` (fused from exact float depth)
 UNSEEN = 0.999  # |tsdf| at or above this counts as truncated / unobserved
 
 
@@ -99,79 +99,6 @@ def select_keyframes(poses: np.ndarray, min_translation: float = 0.1, min_angle_
     return np.asarray(kept, dtype=np.int64)
 
 
-def is_room_dir(path: Path) -> bool:
-    """A finished room folder (a renderer's unfinished `*.partial` folder is not one)."""
-    if path.name.endswith(".partial"):
-        return False
-    return (path / "mesh_gt.ply").is_file() or (path / "pose").is_dir()
-
-
-def find_rooms(paths: Sequence[str | Path]) -> list[Path]:
-    """Room folders named directly, or found one level below the given folders; sorted, unique."""
-    rooms: list[Path] = []
-    for p in map(Path, paths):
-        if is_room_dir(p):
-            rooms.append(p)
-        elif p.is_dir():
-            rooms.extend(sorted(c for c in p.iterdir() if c.is_dir() and is_room_dir(c)))
-        else:
-            raise VortxError(f"training data {p} is not a folder; render rooms with `python -m engine synth`")
-    return sorted(dict.fromkeys(rooms))
-
-
-class _LazyDepths:
-    """Sequence of depth maps read on access (fusion reads one frame at a time)."""
-
-    def __init__(self, paths):
-        self.paths = list(paths)
-
-    def __len__(self):
-        return len(self.paths)
-
-    def __getitem__(self, i):
-        from ..capture import load_depth
-
-        return load_depth(self.paths[i])
-
-
-def gt_path(room: Path) -> Optional[Path]:
-    """The room's 4 cm ground-truth TSDF file: the renderer's `tsdf_gt.npz`, else ours, else None."""
-    for name in (SYNTH_GT_FILE, GT_FILE):
-        if (Path(room) / name).is_file():
-            return Path(room) / name
-    return None
-
-
-def precompute_room(room: Path, force: bool = False, progress=None) -> Path:
-    """Fuse the room's ground-truth TSDF at 4 cm (engine.tsdf.fuse_ground_truth: 12 cm truncation,
-    3 m depth cap, frustum bounds) and save it as `tsdf_gt_04.npz` (TsdfVolume format) beside it."""
-    from ..capture import load_capture
-    from ..tsdf.fusion import fuse_ground_truth
-
-    out = Path(room) / GT_FILE
-    if not force:
-        existing = gt_path(room)
-        if existing is not None:
-            return existing
-    capture = load_capture(room)
-    frames = [f for f in capture.frames if f.pose is not None and f.depth_path is not None]
-    if not frames:
-        raise VortxError(f"room {room}: no frame has both a pose and a depth map")
-    depths = _LazyDepths([f.depth_path for f in frames])
-    d0 = depths[0]
-    Ks = []
-    for f in frames:  # K may refer to the colour image; fusion needs it in depth-map pixels
-        K = np.array(f.K, dtype=np.float64)
-        K[0] *= d0.shape[1] / f.width
-        K[1] *= d0.shape[0] / f.height
-        Ks.append(K)
-    volume = fuse_ground_truth(depths, np.stack(Ks), np.stack([f.pose for f in frames]), progress=progress)
-    tmp = out.with_name(out.stem + ".tmp.npz")
-    volume.save(tmp)
-    tmp.replace(out)
-    return out
-
-
 def load_room(room: Path, image_size: tuple[int, int]) -> RoomData:
     """Load a rendered room at training resolution `image_size` = (W, H)."""
     import cv2
@@ -197,10 +124,7 @@ def load_room(room: Path, image_size: tuple[int, int]) -> RoomData:
         images.append(cv2.resize(img, (W, H), interpolation=cv2.INTER_AREA))
         d = load_depth(f.depth_path)
         depths.append(cv2.resize(d, (W, H), interpolation=cv2.INTER_NEAREST))
-        K = np.array(f.K, dtype=np.float64)
-        K[0] *= W / w0
-        K[1] *= H / h0
-        Ks.append(K)
+        Ks.append(scale_intrinsics(f.K, (w0, h0), (W, H)))
         poses.append(np.asarray(f.pose, dtype=np.float64))
     return RoomData(
         name=room.name,
@@ -303,16 +227,6 @@ def resample_tsdf(tsdf: np.ndarray, tsdf_origin: np.ndarray, voxel: float, point
     return out.numpy()
 
 
-def project(points: np.ndarray, K: np.ndarray, poses: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(V, M) u, v, z of world points in each camera (OpenCV axes, K in pixels)."""
-    w2c = np.linalg.inv(poses)  # (V, 4, 4)
-    cam = np.einsum("vij,mj->vmi", w2c[:, :3, :3], points) + w2c[:, None, :3, 3]
-    z = cam[..., 2]
-    zs = np.where(np.abs(z) < 1e-9, 1e-9, z)
-    uvw = np.einsum("vij,vmj->vmi", K, cam)
-    return uvw[..., 0] / zs, uvw[..., 1] / zs, z
-
-
 def select_views(
     room: RoomData, points_world: np.ndarray, n: int, rng: np.random.Generator
 ) -> np.ndarray:
@@ -326,7 +240,7 @@ def select_views(
         chosen = list(keyframes)
     else:
         pts = points_world[::100]
-        u, v, z = project(pts, room.K[keyframes], room.poses[keyframes])
+        u, v, z = project_points(pts, room.K[keyframes], room.poses[keyframes])
         inside = ((u > 0) & (u < W) & (v > 0) & (v < H) & (z > 0)).any(axis=1)
         ok = keyframes[inside]
         chosen = list(rng.choice(ok, size=min(n, len(ok)), replace=False)) if len(ok) else []
@@ -585,15 +499,9 @@ def box_room(
     rays_cam = np.stack([(uu - K[0, 2]) / f, (vv - K[1, 2]) / f, np.ones_like(uu, dtype=float)], -1)
     for i in range(n_frames):
         a = 2 * math.pi * i / n_frames
-        fwd = np.array([math.cos(a), math.sin(a), -0.15])
-        fwd /= np.linalg.norm(fwd)
-        right = np.cross(fwd, [0, 0, 1.0])
-        right /= np.linalg.norm(right)
-        down = np.cross(fwd, right)
-        R = np.stack([right, down, fwd], 1)
         t = center + 0.3 * np.array([math.cos(a), math.sin(a), 0]) + np.array([0, 0, 1.2 - center[2]])
-        pose = np.eye(4)
-        pose[:3, :3], pose[:3, 3] = R, t
+        pose = look_along(t, [math.cos(a), math.sin(a), -0.15])
+        R = pose[:3, :3]
         dirs = rays_cam @ R.T  # world directions, z_cam = 1
         with np.errstate(divide="ignore", invalid="ignore"):
             tl = np.where(dirs > 0, (hi - t) / dirs, (lo - t) / dirs)

@@ -15,7 +15,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from .dataset import precompute_room
+from ..data.room_folders import find_rooms, precompute_room
 
 DEPTH_EVERY = 4  # frames for the depth metrics: every 4th (10 of a rendered room's 40)
 DEPTH_KEYS = ("AbsRel", "AbsDiff", "r1", "complete")
@@ -94,19 +94,7 @@ def metrics_table(result: dict) -> str:
 
 
 # --------------------------------------------------------------------------------------------
-# Picture: shaded renders of meshes side by side (numpy rasteriser from engine.recon.colour)
-
-
-def _look_at(eye: np.ndarray, target: np.ndarray) -> np.ndarray:
-    fwd = target - eye
-    fwd /= np.linalg.norm(fwd)
-    right = np.cross(fwd, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    down = np.cross(fwd, right)
-    pose = np.eye(4)
-    pose[:3, :3] = np.stack([right, down, fwd], 1)
-    pose[:3, 3] = eye
-    return pose
+# Picture: shaded renders of meshes side by side (numpy rasteriser engine.geometry.depth_render)
 
 
 def shade(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -132,14 +120,15 @@ def render_side_by_side(meshes: Sequence, labels: Sequence[str], out_path: Path,
     import cv2
 
     from ..meshops import subdivide
-    from ..recon.colour import render_depth
+    from ..geometry.cameras import look_at
+    from ..geometry.depth_render import render_depth
 
     ref = np.asarray(meshes[-1].vertices, np.float64)
     lo, hi = ref.min(0), ref.max(0)
     center = (lo + hi) / 2
     top = hi[2] - 0.3 if clip_above is None else clip_above
     eye = center + np.array([-(hi[0] - lo[0]) * 0.45, -(hi[1] - lo[1]) * 0.75, (hi[2] - lo[2]) * 1.6])
-    pose = _look_at(eye, center - np.array([0, 0, 0.5]))
+    pose = look_at(eye, center - np.array([0, 0, 0.5]))
     w, h = size
     K = np.array([[0.75 * w, 0, w / 2], [0, 0.75 * w, h / 2], [0, 0, 1.0]])
     panels = []
@@ -192,8 +181,6 @@ def ship_weights(src: Path, dst: Path, half: bool = True, config_changes: dict |
 def main(argv=None) -> int:
     """python -m engine.train.evaluate --rooms DIR --weights LABEL=PATH ... [--picture PNG]"""
     import argparse
-
-    from .dataset import find_rooms
 
     ap = argparse.ArgumentParser(description="held-out evaluation of trained VoRTX weights")
     ap.add_argument("--rooms", nargs="+", required=True)

@@ -3,7 +3,7 @@
 Voxel positions are voxel CORNERS: `index * voxel_size + origin` (grid.py).
 """
 
-from .bounds import frustum_bounds, frustum_corners, volume_from_bounds
+from .bounds import frustum_bounds, volume_from_bounds
 from .fusion import finalize_tsdf, fuse_ground_truth, fuse_tsdf
 from .grid import voxel_positions, world_to_voxel
 from .targets import (
@@ -11,14 +11,14 @@ from .targets import (
     dilate,
     occupancy_targets,
     projective_occupancy,
-    sample_depth_nearest,
+    projective_occupancy_at_pixels,
     supervised_mask,
     unobserved_columns,
 )
 from .volume import TsdfVolume
 
 __all__ = [
-    "LevelTargets", "TsdfVolume", "dilate", "finalize_tsdf", "frustum_bounds", "frustum_corners",
-    "fuse_ground_truth", "fuse_tsdf", "occupancy_targets", "projective_occupancy", "sample_depth_nearest",
+    "LevelTargets", "TsdfVolume", "dilate", "finalize_tsdf", "frustum_bounds",
+    "fuse_ground_truth", "fuse_tsdf", "occupancy_targets", "projective_occupancy", "projective_occupancy_at_pixels",
     "supervised_mask", "unobserved_columns", "volume_from_bounds", "voxel_positions", "world_to_voxel",
 ]

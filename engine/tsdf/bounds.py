@@ -11,19 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-
-def frustum_corners(K: np.ndarray, cam_to_world: np.ndarray, width: int, height: int, depth: float) -> np.ndarray:
-    """(5, 3) world points: the camera centre and the image corners at planar depth `depth`.
-
-    K (3, 3) pixels; cam_to_world (4, 4) OpenCV axes. Corners use the pixel-edge coordinates 0 and W
-    (0 and H), like NeuralRecon's `get_view_frustum`.
-    """
-    u = np.array([0.0, 0.0, width, width])
-    v = np.array([0.0, height, 0.0, height])
-    x = (u - K[0, 2]) * depth / K[0, 0]
-    y = (v - K[1, 2]) * depth / K[1, 1]
-    cam = np.concatenate([np.zeros((1, 3)), np.stack([x, y, np.full(4, depth)], axis=1)])
-    return cam @ cam_to_world[:3, :3].T + cam_to_world[:3, 3]
+from ..geometry.cameras import frustum_corners
 
 
 def frustum_bounds(
@@ -53,7 +41,7 @@ def frustum_bounds(
         if not np.isfinite(poses[i]).all():
             continue
         max_depth = float(d[valid].max()) if valid.any() else 0.0
-        pts = frustum_corners(Ks[i], poses[i], d.shape[1], d.shape[0], max_depth)
+        pts = np.vstack([poses[i][:3, 3], frustum_corners(Ks[i], poses[i], d.shape[1], d.shape[0], max_depth)])
         lo = np.minimum(lo, pts.min(axis=0))
         hi = np.maximum(hi, pts.max(axis=0))
     return lo, hi

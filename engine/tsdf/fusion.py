@@ -21,7 +21,8 @@ import numpy as np
 import torch
 
 from ..jobs import CancelToken, ProgressCallback, check, report
-from .bounds import frustum_bounds, frustum_corners, volume_from_bounds
+from ..geometry.cameras import frustum_corners, projection_matrix
+from .bounds import frustum_bounds, volume_from_bounds
 from .grid import axis_positions
 from .volume import TsdfVolume
 
@@ -118,7 +119,7 @@ def _integrate(
 
     # Only voxels with z <= max_depth + trunc and inside the image can change; one voxel of slack
     # around the box keeps float error at the border from dropping any.
-    corners = frustum_corners(K, pose, width, height, max_depth + trunc)
+    corners = np.vstack([pose[:3, 3], frustum_corners(K, pose, width, height, max_depth + trunc)])
     lo = np.floor((corners.min(axis=0) - origin) / voxel_size).astype(np.int64) - 1
     hi = np.ceil((corners.max(axis=0) - origin) / voxel_size).astype(np.int64) + 2
     shape = np.array(tsdf.shape)
@@ -129,7 +130,7 @@ def _integrate(
     # P = K [R^T | -R^T t] maps a world point to (z*u, z*v, z). On a grid it is separable:
     # P @ (x, y, z, 1) = P[:, 0] x_i + P[:, 1] y_j + (P[:, 2] z_k + P[:, 3]), so three small outer
     # sums replace a per-voxel matrix product (this loop is the whole cost of ground-truth generation).
-    P = torch.as_tensor(K @ np.linalg.inv(pose)[:3], dtype=torch.float64, device=device)
+    P = torch.as_tensor(projection_matrix(K, pose), dtype=torch.float64, device=device)
     xs, ys, zs = (axis_positions(origin, lo[a], hi[a] - lo[a], voxel_size, a, device=device) for a in range(3))
 
     def project(row: int) -> torch.Tensor:

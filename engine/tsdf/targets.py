@@ -5,16 +5,19 @@
 - Supervised set: the seen voxels plus every voxel of a z-column that is entirely unobserved (the
   Atlas rule); those columns are supervised as +1 TSDF / not occupied.
 - Projective occupancy: a voxel is "occupied" for a view when its camera depth is within 3 * res of
-  the depth map there.
+  the depth map there (the training loss reads it at the network's own projections).
 All functions take and return torch tensors on the input's device (CPU or CUDA).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import torch
 import torch.nn.functional as F
+
+from ..geometry.cameras import project_points_torch
 
 SEEN_LIMIT = 0.999  # |t| below this counts as "near a surface"; t below it counts as "seen"
 
@@ -71,33 +74,33 @@ def occupancy_targets(tsdf: torch.Tensor) -> dict[str, LevelTargets]:
     return levels
 
 
-def sample_depth_nearest(
-    points: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Project world points into one view and read the depth map at the pixel they fall in.
+def projective_occupancy_at_pixels(
+    pixels: torch.Tensor, depth: torch.Tensor, depth_maps: torch.Tensor, trunc: float,
+    sample: Optional[torch.Tensor] = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Projective-occupancy targets of N voxels seen in V views.
 
-    points (M, 3); depth (H, W) metres, 0 = missing; K (3, 3) with pixel (0, 0) covering [0, 1)^2
-    (the engine's convention, so the pixel holding u is floor(u)); cam_to_world (4, 4).
-    Returns (z (M,) camera depth of the points, d (M,) depth-map value, valid (M,) bool: in front of
-    the camera, inside the image and d > 0).
+    pixels (N, V, 2) the voxels' image positions (u, v); depth (N, V) their camera z; depth_maps
+    (B, V, H, W) metres, 0 = missing, in pixels of the images K refers to; sample (N,) each voxel's
+    batch index (None when B = 1). The map is read at the pixel holding (u, v): floor, since pixel j
+    covers [j, j + 1) (the engine's K convention). Returns (target (N, V) float, 1 where |z - d| <
+    trunc; supervised (N, V) bool: inside the image, z > 0 and d > 0).
     """
-    R, t = cam_to_world[:3, :3].to(points.dtype), cam_to_world[:3, 3].to(points.dtype)
-    cam = (points - t) @ R
-    z = cam[:, 2]
-    z_safe = torch.where(z > 0, z, torch.ones_like(z))
-    u = torch.floor(cam[:, 0] / z_safe * K[0, 0] + K[0, 2])
-    v = torch.floor(cam[:, 1] / z_safe * K[1, 1] + K[1, 2])
-    height, width = depth.shape
-    inside = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-    d = depth[torch.where(inside, v, torch.zeros_like(v)).long(), torch.where(inside, u, torch.zeros_like(u)).long()]
-    d = torch.where(inside, d, torch.zeros_like(d))
-    return z, d, inside & (d > 0)
+    _, V, H, W = depth_maps.shape
+    ui = torch.floor(pixels[..., 0]).long()
+    vi = torch.floor(pixels[..., 1]).long()
+    inside = (ui >= 0) & (ui < W) & (vi >= 0) & (vi < H) & (depth > 0)
+    b = torch.zeros_like(ui) if sample is None else sample.long()[:, None].expand_as(ui)
+    view = torch.arange(V, device=depth_maps.device)[None, :].expand_as(ui)
+    d = depth_maps[b, view, vi.clamp(0, H - 1), ui.clamp(0, W - 1)]
+    return ((depth - d).abs() < trunc).float(), inside & (d > 0)
 
 
 def projective_occupancy(
-    points: torch.Tensor, depth: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor, voxel_size: float
+    points: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor, depth_maps: torch.Tensor, trunc: float
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Projective-occupancy target of points for one view: (target (M,) bool |z - d| < 3 * voxel_size,
-    valid (M,) bool where the loss applies). Shapes as in `sample_depth_nearest`."""
-    z, d, valid = sample_depth_nearest(points, depth, K, cam_to_world)
-    return ((z - d).abs() < 3 * voxel_size) & valid, valid
+    """`projective_occupancy_at_pixels` for world points (M, 3) in views K (V, 3, 3), cam_to_world
+    (V, 4, 4) with depth maps (V, H, W): (target (M, V) float, supervised (M, V) bool). The spec's
+    truncation is 3 voxels of the level (`trunc` = 3 * res)."""
+    u, v, z = project_points_torch(points, K, cam_to_world)
+    return projective_occupancy_at_pixels(torch.stack([u, v], dim=-1), z, depth_maps[None], trunc)

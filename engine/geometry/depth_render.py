@@ -1,0 +1,57 @@
+"""Depth maps of a triangle mesh seen from a posed camera (a numpy z-buffer, no GPU, no Blender).
+
+Used by vertex colouring (occlusion), the depth metrics of `engine.eval`, the held-out evaluation
+picture and the capture-view picture script. Pixel convention: pixel (row i, column j) covers
+u in [j, j + 1), v in [i, i + 1) (engine/geometry/cameras.py).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .cameras import camera_to_pixels, world_to_camera
+
+NEAR_PLANE = 0.05  # metres; triangles closer than this to a camera are not rendered
+MAX_EDGE_SAMPLES = 64  # caps the samples of a huge (very close) triangle to 65 x 66 / 2
+SAMPLES_PER_CALL = 4_000_000  # bounds the (triangles, samples, 3) buffer to ~100 MB
+
+
+def render_depth(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, pose: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Planar depth (h, w) float32 of the mesh seen from one camera; inf where nothing is hit.
+
+    vertices (V, 3) world; faces (F, 3); K (3, 3); pose (4, 4) camera-to-world; size = (w, h).
+    Each triangle is sampled on a barycentric lattice fine enough that neighbouring samples are at
+    most half a pixel apart, so it covers every pixel it overlaps; samples are exact points of the
+    3D triangle, so depths are perspective-correct. Triangles crossing the near plane are skipped.
+    """
+    w, h = size
+    depth = np.full(h * w, np.inf, dtype=np.float64)
+    cam = world_to_camera(vertices, pose)
+    in_front = cam[:, 2] > NEAR_PLANE
+    tris = faces[in_front[faces].all(axis=1)]
+    if len(tris) == 0:
+        return depth.reshape(h, w).astype(np.float32)
+    # Vertices behind the camera get a dummy depth of 1; only triangles fully in front are used.
+    u, v = camera_to_pixels(np.where(in_front[:, None], cam, [0.0, 0.0, 1.0]), K)
+    tu, tv = u[tris], v[tris]  # (T, 3)
+    on_screen = (tu.max(1) >= 0) & (tu.min(1) < w) & (tv.max(1) >= 0) & (tv.min(1) < h)
+    tris, tu, tv = tris[on_screen], tu[on_screen], tv[on_screen]
+    edge = np.max(np.hypot(tu - np.roll(tu, 1, axis=1), tv - np.roll(tv, 1, axis=1)), axis=1)
+    steps = np.clip(np.ceil(2.0 * edge), 1, MAX_EDGE_SAMPLES).astype(np.int64)
+    for n in np.unique(steps):
+        group = tris[steps == n]
+        i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+        keep = i + j <= n
+        w1, w2 = i[keep] / n, j[keep] / n
+        bary = np.stack([1.0 - w1 - w2, w1, w2], axis=1)  # (S, 3)
+        per_call = max(1, SAMPLES_PER_CALL // len(bary))
+        for a in range(0, len(group), per_call):
+            corners = cam[group[a:a + per_call]]  # (t, 3, 3)
+            # Three broadcast multiply-adds: several times faster than einsum for these shapes.
+            points = (bary[None, :, 0, None] * corners[:, None, 0] + bary[None, :, 1, None] * corners[:, None, 1]
+                      + bary[None, :, 2, None] * corners[:, None, 2]).reshape(-1, 3)
+            pu, pv = camera_to_pixels(points, K)
+            col, row = np.floor(pu).astype(np.int64), np.floor(pv).astype(np.int64)
+            inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+            np.minimum.at(depth, row[inside] * w + col[inside], points[inside, 2])
+    return depth.reshape(h, w).astype(np.float32)
