@@ -4,9 +4,16 @@
 import bpy
 from bpy.props import BoolProperty, StringProperty
 
-from ..engine.capture import Capture
 from ..engine.errors import CaptureError
-from ..vortx_blender.capture import apply_capture, import_capture_job, resolve_capture_path
+from ..vortx_blender.capture import (
+    ImportedCapture,
+    apply_capture,
+    import_capture_job,
+    loaded_capture,
+    remember_loaded_capture,
+    resolve_capture_path,
+    scene_camera_height,
+)
 from ..vortx_blender.job_operator import JobOperatorMixin
 from ..vortx_blender.jobs import JobFunction
 from ..vortx_blender.poses import PosedCapture, PoseSettings, estimate_poses_job
@@ -45,11 +52,16 @@ class VORTX_OT_import_capture(JobOperatorMixin, bpy.types.Operator):
         if path is None:
             raise CaptureError("Choose a capture folder or file (transforms.json, a video, ...)")
         self._path = path
-        return import_capture_job(path)
+        return import_capture_job(path, camera_height=scene_camera_height(context.scene.vortx))
 
-    def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: Capture) -> set[str]:
-        applied = apply_capture(scene, result, self._path)
-        _report_applied(self, f"Imported {self._path.name}: {applied.message(result)}", applied.warnings)
+    def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: ImportedCapture) -> set[str]:
+        prepared = result.prepared
+        applied = apply_capture(scene, prepared.capture, self._path, pose_status=prepared.pose_status())
+        remember_loaded_capture(scene, self._path, result.loaded)
+        for line in prepared.report_lines:
+            print(line)
+        _report_applied(self, f"Imported {self._path.name}: {applied.message(prepared.capture)}; {prepared.description}",
+                        prepared.warnings + applied.warnings)
         return {"FINISHED"}
 
 
@@ -71,10 +83,12 @@ class VORTX_OT_estimate_poses(JobOperatorMixin, bpy.types.Operator):
         return True
 
     def make_job_function(self, context: bpy.types.Context) -> JobFunction:
-        return estimate_poses_job(PoseSettings.from_scene(context.scene.vortx))
+        settings = PoseSettings.from_scene(context.scene.vortx)
+        return estimate_poses_job(settings, loaded_capture(context.scene, settings.capture_path))
 
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: PosedCapture) -> set[str]:
         applied = apply_capture(scene, result.capture, result.capture_path, pose_status=result.pose_status())
+        remember_loaded_capture(scene, result.capture_path, result.loaded)
         if result.report:
             print(result.report)  # the full SfM report (per-image registration, errors) for the console
         _report_applied(self, f"Estimated poses: {applied.message(result.capture)}", result.warnings + applied.warnings)

@@ -29,14 +29,17 @@ def _noise_image(width: int, height: int, seed: int) -> np.ndarray:
     return np.random.default_rng(seed).integers(0, 256, (height, width, 3), dtype=np.uint8)
 
 
-def _write_transforms(folder: Path, poses_cv: list[np.ndarray], fx: float, fy: float, cx: float, cy: float, size=(64, 48)) -> Path:
-    """instant-ngp transforms.json: transform_matrix is camera-to-world in OpenGL camera axes."""
+def _write_transforms(folder: Path, poses_cv: list[np.ndarray], fx: float, fy: float, cx: float, cy: float, size=(64, 48),
+                      metric: bool = False) -> Path:
+    """instant-ngp transforms.json: transform_matrix is camera-to-world in OpenGL camera axes.
+    `metric` writes our tools' `"metric": true` (import then keeps the poses as they are)."""
     frames = []
     for i, pose in enumerate(poses_cv):
         _write_image(folder / "images" / f"{i:03d}.jpg", _noise_image(*size, seed=i))
         frames.append({"file_path": f"images/{i:03d}.jpg", "transform_matrix": (pose @ OPENGL_FROM_OPENCV).tolist()})
     path = folder / "transforms.json"
-    path.write_text(json.dumps({"fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": size[0], "h": size[1], "frames": frames}))
+    top = {"metric": True} if metric else {}
+    path.write_text(json.dumps({"fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, "w": size[0], "h": size[1], "frames": frames, **top}))
     return path
 
 
@@ -55,7 +58,7 @@ def test_transforms_json_cameras_match_the_file(blender, empty_scene, tmp_path: 
 
     poses = _ring(5)
     fx, fy, cx, cy = 70.0, 64.0, 30.5, 25.0
-    path = _write_transforms(tmp_path / "cap", poses, fx, fy, cx, cy)
+    path = _write_transforms(tmp_path / "cap", poses, fx, fy, cx, cy, metric=True)
     assert bpy.ops.vortx.import_capture(filepath=str(path)) == {"FINISHED"}
     settings = empty_scene.vortx
     assert (settings.capture_format, settings.frame_count, settings.posed_frame_count) == ("transforms", 5, 5)
@@ -107,8 +110,9 @@ def _empty_folder(tmp_path: Path) -> tuple[Path, str]:
 
 
 def _corrupt_photo(tmp_path: Path) -> tuple[Path, str]:
+    """One good photo and one truncated: a bad photo is skipped, and one photo left is too few."""
     folder = tmp_path / "photos"
-    for i in range(4):
+    for i in (1, 2):
         _write_image(folder / f"{i:03d}.jpg", _noise_image(64, 48, seed=10 + i))
     data = (folder / "002.jpg").read_bytes()
     (folder / "002.jpg").write_bytes(data[: len(data) // 3])  # truncated copy

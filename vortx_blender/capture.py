@@ -2,6 +2,11 @@
 
 Both operators (import, estimate poses) end here. Everything that can fail (the engine, validating
 intrinsics and poses) happens before the first write, so a failure leaves the scene unchanged.
+
+Import prepares the capture exactly as `python -m engine reconstruct` does (`engine.poses.prepare`:
+Z up, scaled from the camera height), so the cameras stand in the world the network reconstructs in.
+The capture as loaded is kept in memory per scene, so Estimate Poses does not load it (check photos,
+extract video frames) a second time.
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ from typing import TYPE_CHECKING, Optional
 from ..engine import capture as engine_capture
 from ..engine.capture import Capture
 from ..engine.jobs import CancelToken, ProgressCallback
+from ..engine.poses.prepare import SFM_NEVER, PreparedCapture, prepare_capture
 from .cameras import apply_camera_plan, plan_capture_cameras
 from .jobs import JobFunction
 from .properties import capture_summary, write_summary
@@ -63,11 +69,41 @@ def apply_capture(scene: "bpy.types.Scene", capture: Capture, path: os.PathLike 
     return CaptureApplied(cameras=cameras, warnings=list(capture.warnings) + plan.warnings)
 
 
-def import_capture_job(path: Path) -> JobFunction:
-    """A job function loading the capture at `path` (photo checks, video frames, undistortion can
-    take minutes, hence a job rather than a plain call)."""
+def scene_camera_height(settings: object) -> float:
+    """scene.vortx.camera_height in metres as the user typed it: the property is float32 (1.7 reads as
+    1.70000005), rounded so the panel, the CLI and the batch script give the same world."""
+    return round(float(settings.camera_height), 6)
 
-    def run(progress: ProgressCallback, cancel: CancelToken) -> Capture:
-        return engine_capture.load_capture(path, progress=progress, cancel=cancel)
+
+@dataclass(frozen=True)
+class ImportedCapture:
+    loaded: Capture  # as the loader returned it (kept for Estimate Poses)
+    prepared: PreparedCapture  # Z up and scaled: what the scene's cameras show
+
+
+def import_capture_job(path: Path, camera_height: float) -> JobFunction:
+    """A job function loading the capture at `path` (photo checks, video frames, undistortion can
+    take minutes, hence a job rather than a plain call) and preparing its posed frames (never SfM:
+    that is the Estimate Poses button)."""
+
+    def run(progress: ProgressCallback, cancel: CancelToken) -> ImportedCapture:
+        loaded = engine_capture.load_capture(path, progress=progress, cancel=cancel)
+        cancel.check()
+        return ImportedCapture(loaded, prepare_capture(loaded, camera_height=camera_height, sfm=SFM_NEVER))
 
     return run
+
+
+# scene.session_uid -> (capture path, the capture as loaded). Python objects cannot live in Blender
+# data, and a reopened .blend has no entry: Estimate Poses then loads the capture from disk.
+_loaded_captures: dict[int, tuple[Path, Capture]] = {}
+
+
+def remember_loaded_capture(scene: "bpy.types.Scene", path: Path, capture: Capture) -> None:
+    _loaded_captures[scene.session_uid] = (Path(path), capture)
+
+
+def loaded_capture(scene: "bpy.types.Scene", path: Path) -> Optional[Capture]:
+    """The capture this scene imported from `path` in this session, or None."""
+    entry = _loaded_captures.get(scene.session_uid)
+    return entry[1] if entry is not None and entry[0] == Path(path) else None

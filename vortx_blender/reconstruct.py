@@ -19,8 +19,10 @@ from ..engine.errors import PoseError, VortxError, WeightsError
 from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.mesh_io import Mesh
 from ..engine.meshops import PieceStats, remove_small_pieces
+from ..engine.poses.prepare import SFM_NEVER, prepare_capture
 from ..engine.recon.settings import ReconSettings
 from .cameras import posed_capture_from_scene
+from .capture import apply_capture, scene_camera_height
 from .jobs import JobFunction
 from .result import Provenance
 
@@ -119,14 +121,25 @@ def recon_settings_from_scene(settings: Any, with_weights: bool = True) -> Recon
 
 
 def scene_capture(scene: "bpy.types.Scene") -> Capture:
-    """The posed capture rebuilt from the scene's capture cameras; PoseError when there is none."""
+    """The posed capture rebuilt from the scene's capture cameras, prepared (`engine.poses.prepare`) as
+    the CLI prepares a capture; PoseError when there is none.
+
+    Import Capture and Estimate Poses already place the cameras in the prepared world, where preparing
+    again changes nothing. Cameras from elsewhere (a .blend saved by an older version, with a COLMAP
+    model's tilted world) are moved to the prepared world here, main thread, before the run, so the
+    mesh and the cameras stay together; the capture summary's pose status says what was done.
+    """
     capture = posed_capture_from_scene(scene)
     if capture is None or not capture.posed_frames:
         raise PoseError(
             "The scene has no posed capture cameras: import a capture with poses (transforms.json, COLMAP, "
             "ScanNet) or run Estimate Poses first"
         )
-    return capture
+    prepared = prepare_capture(capture, camera_height=scene_camera_height(scene.vortx), sfm=SFM_NEVER)
+    if prepared.moved():
+        print(f"VoRTX: capture cameras moved to the reconstruction world: {prepared.description}")
+        apply_capture(scene, prepared.capture, scene.vortx.capture_path, pose_status=prepared.pose_status())
+    return prepared.capture
 
 
 def request_from_scene(scene: "bpy.types.Scene") -> ReconRequest:

@@ -11,8 +11,10 @@ from pathlib import Path
 
 from ..errors import PoseError
 from ..jobs import TqdmProgress
+from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .gravity import KnownDistance
-from .sfm import INTRINSICS, MATCHERS, SfmOptions, estimate_poses
+from .prepare import SFM_ALWAYS, prepare_capture
+from .sfm import INTRINSICS, MATCHERS, SfmOptions
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,8 +26,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="downscale photos to this larger side for SfM (default 1024; 0 = full size)")
     parser.add_argument("--intrinsics", choices=INTRINSICS, default="auto",
                         help="fixed: trust the capture's K; prior: refine it; estimate: ignore it (default: auto)")
-    parser.add_argument("--camera-height", type=float, default=1.5,
-                        help="camera height above the floor in metres, sets the scale (default 1.5)")
+    parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
+                        help="camera height above the floor in metres, sets the scale (default %(default)s)")
     parser.add_argument("--known-distance", nargs=3, metavar=("FRAME_A", "FRAME_B", "METRES"),
                         help="set the scale from the distance between the cameras of two photos (file names)")
     parser.add_argument("--overwrite", action="store_true", help="replace a capture already in --out")
@@ -49,14 +51,8 @@ def run(args: argparse.Namespace) -> int:
     from ..capture import load_capture
     from ..capture.export import write_colmap_text, write_scannet
 
-    options = SfmOptions(
-        matcher=args.matcher,
-        max_side=args.max_side,
-        intrinsics=args.intrinsics,
-        camera_height=args.camera_height,
-        known_distance=_known_distance(args.known_distance),
-        work_dir=args.work_dir,
-    )
+    known_distance = _known_distance(args.known_distance)
+    options = SfmOptions(matcher=args.matcher, max_side=args.max_side, intrinsics=args.intrinsics, work_dir=args.work_dir)
     progress = TqdmProgress(disable=args.quiet)
     try:
         capture = load_capture(args.capture, progress=progress)
@@ -66,12 +62,15 @@ def run(args: argparse.Namespace) -> int:
         if already:
             print(f"note: {capture.root} already has poses for {already} of {len(capture.frames)} frames; "
                   "structure from motion replaces them")
-        result = estimate_poses(capture, options, progress=progress)
-        written = write_scannet(result.capture, args.out, overwrite=args.overwrite)
+        prepared = prepare_capture(capture, camera_height=args.camera_height, known_distance=known_distance,
+                                   sfm=SFM_ALWAYS, sfm_options=options, progress=progress)
+        result = prepared.sfm
+        assert result is not None  # SFM_ALWAYS
+        written = write_scannet(prepared.capture, args.out, overwrite=args.overwrite)
         write_colmap_text(written, args.out / "colmap", result.points, result.point_colors)
     finally:
         progress.close()
-    print(result.report)
+    print("\n".join(prepared.report_lines))
     print(f"wrote {len(written.frames)} posed photos to {args.out} (ScanNet layout) and a COLMAP text model "
           f"to {args.out / 'colmap'}")
     return 0

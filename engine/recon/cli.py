@@ -16,6 +16,8 @@ from typing import Any
 
 from ..errors import VortxError
 from ..jobs import TqdmProgress
+from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
+from ..poses.prepare import SFM_IF_UNPOSED, PreparedCapture, prepare_capture
 from .settings import ReconSettings
 
 MESH_SUFFIXES = (".ply", ".obj")
@@ -43,7 +45,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="clip the scene bounds to this size in metres around the median camera (default %(default)s)")
     parser.add_argument("--frustum-depth", type=float, default=defaults.frustum_depth,
                         help="scene bounds = camera frusta cut at this depth in metres (default %(default)s)")
-    parser.add_argument("--camera-height", type=float, default=1.5,
+    parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="metres above the floor, for the scale of captures whose poses are not metric "
                              "(default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -76,26 +78,13 @@ def sidecar_path(mesh_path: Path) -> Path:
     return mesh_path.with_suffix(".json")
 
 
-def metric_posed(capture, camera_height: float, progress: TqdmProgress):
-    """The capture as the network needs it: posed, Z up, metres.
-
-    Photos without poses get structure from motion first (as `python -m engine poses` would);
-    posed captures in arbitrary units (COLMAP, most transforms.json) are turned Z up and, where a
-    floor can be found, scaled from the camera height. Metric layouts pass through untouched.
-    """
-    from ..poses import SfmOptions, align_gravity_and_scale, estimate_poses
-
-    if not capture.posed_frames:
-        result = estimate_poses(capture, SfmOptions(camera_height=camera_height), progress=progress)
-        print(result.report, file=sys.stderr)
-        return result.capture
-    if capture.metric:
-        return capture
-    alignment = align_gravity_and_scale(capture, camera_height=camera_height)
-    print(f"poses: {alignment.description}", file=sys.stderr)
-    for warning in alignment.warnings:
-        print(f"warning: {warning}", file=sys.stderr)
-    return alignment.capture
+def report_preparation(prepared: PreparedCapture) -> None:
+    """What capture preparation did, on stderr (stdout carries the result line)."""
+    for line in prepared.report_lines:
+        print(line, file=sys.stderr)
+    if prepared.sfm is None:  # the SfM report lists its own warnings
+        for warning in prepared.warnings:
+            print(f"warning: {warning}", file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -111,7 +100,10 @@ def run(args: argparse.Namespace) -> int:
     capture = load_capture(args.capture)
     progress = TqdmProgress(disable=args.quiet)
     try:
-        capture = metric_posed(capture, args.camera_height, progress)
+        # Photos without poses get structure from motion first, as `python -m engine poses` would.
+        prepared = prepare_capture(capture, camera_height=args.camera_height, sfm=SFM_IF_UNPOSED, progress=progress)
+        report_preparation(prepared)
+        capture = prepared.capture
         result = reconstruct(capture, settings, progress=progress)
     finally:
         progress.close()
@@ -120,6 +112,8 @@ def run(args: argparse.Namespace) -> int:
     sidecar = {
         "capture": str(Path(args.capture).resolve()),
         "capture_format": capture.format,
+        "poses": {"scale_source": prepared.scale_source, "description": prepared.description,
+                  "warnings": prepared.warnings},
         "output": str(out.resolve()),
         **result.stats,
         "tile_details": [t.to_dict() for t in result.tiles],

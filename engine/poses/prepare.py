@@ -1,0 +1,137 @@
+"""Capture preparation: a loaded capture -> the posed, Z-up, metric world the network needs.
+
+The one step shared by `python -m engine reconstruct`, `python -m engine poses`, Blender's Import
+Capture / Estimate Poses / Reconstruct and the batch script, so the same capture gives the same world
+through each of them:
+- photos without poses get structure from motion (which aligns and scales its own model with the
+  sparse points), when the caller allows it;
+- posed captures in arbitrary units (COLMAP, most transforms.json) are rotated Z up and, where a
+  floor can be found, scaled from the camera height (`align_gravity_and_scale`);
+- metric layouts (ScanNet, metric transforms.json) pass through untouched.
+
+`PreparedCapture` says what was done (scale source, one-line description, warnings), so every entry
+point reports it in the same words.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Optional
+
+import numpy as np
+
+from ..capture.model import Capture
+from ..errors import PoseError
+from ..jobs import CancelToken, ProgressCallback
+from .camera_height import DEFAULT_CAMERA_HEIGHT_M
+from .align import Similarity
+from .gravity import KnownDistance, align_gravity_and_scale
+
+if TYPE_CHECKING:
+    from .sfm import PoseResult, SfmOptions
+
+# When structure from motion runs.
+SFM_NEVER = "never"  # posed frames are aligned, unposed captures are returned as they are (Blender import)
+SFM_IF_UNPOSED = "if unposed"  # SfM only when no frame has a pose (engine reconstruct)
+SFM_ALWAYS = "always"  # SfM replaces any poses the capture has (engine poses, Estimate Poses)
+SFM_MODES = (SFM_NEVER, SFM_IF_UNPOSED, SFM_ALWAYS)
+
+# PreparedCapture.scale_source values, beside align_gravity_and_scale's own
+# ("camera height", "known distance", "metric capture", "unknown").
+NO_POSES = "no poses"
+
+
+@dataclass
+class PreparedCapture:
+    capture: Capture  # posed frames Z up (metres when the scale is known); unposed captures as given
+    scale_source: str  # "camera height", "known distance", "metric capture", "unknown", "no poses"
+    description: str  # one line: what was done to the world
+    warnings: list[str] = field(default_factory=list)
+    sfm: Optional["PoseResult"] = None  # the structure-from-motion result when SfM ran (its report, points)
+    # What moved the given posed frames (x_new = s R x + t); None when SfM replaced them or there were none.
+    similarity: Optional[Similarity] = None
+
+    @property
+    def ran_sfm(self) -> bool:
+        return self.sfm is not None
+
+    @property
+    def report_lines(self) -> list[str]:
+        """What the entry points print (CLI) or log (Blender console): the SfM report when SfM ran,
+        else the one-line description of the world."""
+        if self.sfm is not None:
+            return self.sfm.report.splitlines()
+        return [f"poses: {self.description}"]
+
+    def moved(self, tolerance: float = 1e-5) -> bool:
+        """True when the given poses were changed by more than `tolerance` (metres at 1 m from the
+        origin, radians, relative scale); False when SfM replaced them (a new world, not a move)."""
+        if self.similarity is None:
+            return False
+        s = self.similarity
+        return bool(abs(s.scale - 1.0) > tolerance or abs(s.rotation - np.eye(3)).max() > tolerance
+                    or abs(s.translation).max() > tolerance)
+
+    def pose_status(self) -> str:
+        """The Blender panel's one-line pose status: how many frames are posed, by what, at which scale."""
+        capture = self.capture
+        posed, total = len(capture.posed_frames), len(capture.frames)
+        if posed == 0:
+            return "No poses: run Estimate Poses"
+        scale = {
+            "camera height": "scaled by camera height",
+            "known distance": "scaled by a known distance",
+            "metric capture": "metric",
+        }.get(self.scale_source, "scale unknown")
+        if self.ran_sfm:
+            return f"{posed} of {total} posed by SfM, {scale}"
+        status = f"All {total} posed ({capture.format})" if posed == total else f"{posed} of {total} posed ({capture.format})"
+        return status if self.scale_source == "metric capture" else f"{status}, Z up, {scale}"
+
+
+def prepare_capture(
+    capture: Capture,
+    camera_height: float = DEFAULT_CAMERA_HEIGHT_M,
+    known_distance: Optional[KnownDistance] = None,
+    sfm: str = SFM_IF_UNPOSED,
+    sfm_options: Optional["SfmOptions"] = None,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+) -> PreparedCapture:
+    """`capture` in the world the network needs: posed, Z up, metric where a scale can be found.
+
+    `sfm` (one of SFM_MODES) says when structure from motion runs; `sfm_options` tunes it (its own
+    camera_height / known_distance are replaced by the arguments here, so the scale has one source).
+    Raises PoseError for a bad camera height or known distance, or when SfM finds no poses.
+    """
+    if sfm not in SFM_MODES:
+        raise ValueError(f"sfm must be one of {SFM_MODES}, got {sfm!r}")
+    if not camera_height > 0:
+        raise PoseError(f"camera height must be positive, got {camera_height} m")
+    posed = bool(capture.posed_frames)
+    if sfm == SFM_ALWAYS or (sfm == SFM_IF_UNPOSED and not posed):
+        return _with_sfm(capture, camera_height, known_distance, sfm_options, progress, cancel)
+    if not posed:
+        return PreparedCapture(capture, NO_POSES, "no frame has a pose: run structure from motion (Estimate Poses)")
+    alignment = align_gravity_and_scale(capture, camera_height=camera_height, known_distance=known_distance)
+    return PreparedCapture(alignment.capture, alignment.scale_source, alignment.description, list(alignment.warnings),
+                           similarity=alignment.similarity)
+
+
+def _with_sfm(
+    capture: Capture,
+    camera_height: float,
+    known_distance: Optional[KnownDistance],
+    sfm_options: Optional["SfmOptions"],
+    progress: Optional[ProgressCallback],
+    cancel: Optional[CancelToken],
+) -> PreparedCapture:
+    # From the package at call time: the SfM code loads only when SfM actually runs (and tests can
+    # stand in for `engine.poses.estimate_poses`).
+    from . import SfmOptions, estimate_poses
+
+    options = replace(sfm_options or SfmOptions(), align=True, camera_height=camera_height, known_distance=known_distance)
+    result = estimate_poses(capture, options, progress=progress, cancel=cancel)
+    alignment = result.alignment
+    assert alignment is not None  # align=True above
+    return PreparedCapture(result.capture, alignment.scale_source, alignment.description, list(result.warnings), sfm=result)
