@@ -143,13 +143,14 @@ def test_estimate_poses_applies_engine_result(blender, empty_scene, fake_loader,
     import bpy
 
     poses = importlib.import_module(f"{blender.__name__}.engine.poses")  # loaded lazily by the extension
-    outcome, _ = fake_loader
-    outcome["value"] = _capture(blender, tmp_path, 6, posed=False, fmt="images")
+    outcome, calls = fake_loader
+    imported = outcome["value"] = _capture(blender, tmp_path, 6, posed=False, fmt="images")
     bpy.ops.vortx.import_capture(filepath=str(tmp_path))
-    seen_options = []
+    seen_options, seen_captures = [], []
 
     def fake_estimate(capture, options=None, progress=None, cancel=None):
         seen_options.append(options)
+        seen_captures.append(capture)
         posed = _capture(blender, tmp_path, 6)
         posed.frames[5].pose = None  # one photo SfM could not place
         alignment = poses.Alignment(posed, poses.Similarity.identity(), None, "camera height", "scaled")
@@ -171,6 +172,13 @@ def test_estimate_poses_applies_engine_result(blender, empty_scene, fake_loader,
     assert settings.posed_frame_count == 5 and settings.frame_count == 6
     assert settings.pose_status == "5 of 6 posed by SfM, scaled by camera height"
     assert len([o for o in bpy.data.objects if o.type == "CAMERA"]) == 5
+    # SfM ran on the capture Import loaded, which was not loaded from disk a second time.
+    assert calls == [tmp_path] and seen_captures[0] is imported
+
+    # A scene this session did not import (a reopened .blend) loads the capture from disk.
+    blender.vortx_blender.capture._loaded_captures.clear()
+    assert bpy.ops.vortx.estimate_poses() == {"FINISHED"}
+    assert calls == [tmp_path, tmp_path]
 
 
 def test_estimate_poses_failure_changes_nothing(blender, empty_scene, fake_loader, monkeypatch, tmp_path: Path) -> None:
