@@ -199,8 +199,20 @@ def test_camera_size_mismatch_names_the_image(tmp_path):
     write_photo_folder(tmp_path / "images", 2, (50, 50), names=names)
     cameras, images = _model(ring_poses(2), names)
     write_colmap_text(tmp_path / "sparse" / "0", cameras, images)
-    with pytest.raises(CaptureError, match=r"a\.png is 50 x 50"):
+    with pytest.raises(CaptureError, match=r"no posed photos after skipping 2 unusable photo\(s\): a\.png \(50 x 50, "
+                                           r"while .*cameras\.txt \(camera 1\) states a 64 x 48 camera"):
         load_capture(tmp_path)
+
+
+def test_one_photo_of_another_aspect_ratio_is_skipped_with_a_warning(tmp_path):
+    names = ["a.png", "b.png", "c.png"]
+    write_photo_folder(tmp_path / "images", 3, (W, H), names=names)
+    write_photo_folder(tmp_path / "images", 1, (50, 50), names=["b.png"], seed=7)
+    cameras, images = _model(ring_poses(3), names)
+    write_colmap_text(tmp_path / "sparse" / "0", cameras, images)
+    capture = load_capture(tmp_path)
+    assert [f.name for f in capture.frames] == ["a.png", "c.png"]
+    assert any(w.startswith("1 photo(s) skipped") and "b.png (50 x 50, while" in w for w in capture.warnings)
 
 
 def test_truncated_binary_model_is_reported(tmp_path):

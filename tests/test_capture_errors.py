@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -41,16 +42,69 @@ def test_single_photo_file_is_not_a_capture(tmp_path):
     assert "single photo" in _error(path)
 
 
-@pytest.mark.parametrize("content", [b"this is not a JPEG at all", "truncated"])
-def test_corrupt_photo_is_named(tmp_path, content):
-    write_photo_folder(tmp_path, 3, (320, 240), suffix=".jpg")
-    if content == "truncated":  # a valid header with half the data: OpenCV would decode it silently
-        data = (tmp_path / "frame1.jpg").read_bytes()
-        (tmp_path / "frame1.jpg").write_bytes(data[: len(data) // 2])
+def _spoil(path, how: str) -> None:
+    """Make the photo at `path` unusable the way real files are."""
+    if how == "truncated":  # a valid header with half the data: OpenCV would decode it silently
+        data = path.read_bytes()
+        path.write_bytes(data[: len(data) // 2])
+    elif how == "empty":
+        path.write_bytes(b"")
+    elif how == "not an image":
+        path.write_bytes(b"this is not a JPEG at all")
     else:
-        (tmp_path / "frame1.jpg").write_bytes(content)
+        raise AssertionError(how)
+
+
+REASONS = {"truncated": "truncated", "empty": "an empty file (0 bytes)", "not an image": "not an image",
+           "unreadable": "unreadable"}
+
+
+@pytest.mark.parametrize("how", list(REASONS))
+def test_bad_photo_is_skipped_with_a_warning_naming_it(tmp_path, monkeypatch, how):
+    write_photo_folder(tmp_path, 4, (320, 240), suffix=".jpg")
+    if how == "unreadable":  # chmod 0 would not do under root, which reads anything: refuse the read itself
+        read_bytes = Path.read_bytes
+
+        def refuse(path):
+            if path.name == "frame1.jpg":
+                raise PermissionError(13, "Permission denied", str(path))
+            return read_bytes(path)
+
+        monkeypatch.setattr(Path, "read_bytes", refuse)
+    else:
+        _spoil(tmp_path / "frame1.jpg", how)
+    capture = load_capture(tmp_path)
+    assert [f.name for f in capture.frames] == ["frame0.jpg", "frame2.jpg", "frame3.jpg"]
+    [warning] = [w for w in capture.warnings if "skipped" in w]
+    assert warning.startswith("1 photo(s) skipped, the capture goes on without them: frame1.jpg (")
+    assert REASONS[how] in warning
+
+
+@pytest.mark.parametrize("how", ["truncated", "not an image"])
+def test_too_few_photos_left_says_how_many_were_skipped_and_why(tmp_path, how):
+    write_photo_folder(tmp_path, 3, (320, 240), suffix=".jpg")
+    _spoil(tmp_path / "frame1.jpg", how)
+    _spoil(tmp_path / "frame2.jpg", "empty")
     message = _error(tmp_path)
-    assert str(tmp_path / "frame1.jpg") in message and "corrupt" in message and "remove it" in message
+    assert f"{tmp_path} has only 1 photo (frame0.jpg) after skipping 2 unusable photo(s): frame1.jpg (" in message
+    assert REASONS[how] in message and "frame2.jpg (an empty file (0 bytes))" in message
+    assert "remove it from the capture" in message  # what to do about them
+
+
+def test_every_photo_bad_is_an_error_naming_them(tmp_path):
+    write_photo_folder(tmp_path, 2, (64, 48), suffix=".jpg")
+    _spoil(tmp_path / "frame0.jpg", "truncated")
+    _spoil(tmp_path / "frame1.jpg", "truncated")
+    message = _error(tmp_path)
+    assert "has no photos after skipping 2 unusable photo(s): frame0.jpg" in message and "frame1.jpg" in message
+
+
+def test_stray_photo_of_another_size_is_skipped(tmp_path):
+    write_photo_folder(tmp_path, 4, (64, 48), names=[f"a{i}.png" for i in range(4)])
+    write_photo_folder(tmp_path, 1, (48, 64), names=["b.png"], seed=10)
+    capture = load_capture(tmp_path)
+    assert [f.name for f in capture.frames] == [f"a{i}.png" for i in range(4)]
+    assert any("b.png (48 x 64, while 4 of the 5 photos are 64 x 48)" in w for w in capture.warnings)
 
 
 def test_mixed_resolutions_name_one_file_of_each_size(tmp_path):

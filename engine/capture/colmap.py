@@ -27,12 +27,12 @@ import numpy as np
 
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
-from .checks import finish_capture, inspect_images
+from .checks import SkippedPhotos, finish_capture, inspect_images
 from .colmap_model import ColmapCamera, ColmapModel, model_kind, read_model
 from .colmap_model import ColmapImage
 from .geometry import (ROTATION_TOLERANCE, PoseRepairs, camera_to_world_from_world_to_camera, fit_intrinsics, pinhole,
                        quaternion_deviation, quaternion_to_rotation)
-from .images import list_images
+from .images import UnusableImage, list_images
 from .model import Capture, Frame
 from .naming import name_list, natural_key
 from .options import LoadOptions
@@ -169,19 +169,29 @@ def load_colmap(path: Path, options: LoadOptions, progress: Optional[ProgressFn]
         warnings.append(f"{len(unregistered)} photo(s) in {images_folder} are not registered in the COLMAP model "
                         f"and are left out: {name_list(unregistered)}")
 
-    infos = inspect_images([p for _, p, _ in entries], verify=options.verify_images, progress=progress, cancel=cancel)
-    frames, distortion = [], {}
+    skipped = SkippedPhotos()
+    infos = inspect_images([p for _, p, _ in entries], skipped, verify=options.verify_images, progress=progress,
+                           cancel=cancel)
+    frames, usable_infos, distortion = [], [], {}
     fit_warnings: dict[int, str] = {}
     for (image, image_path, pose), info in zip(entries, infos):
+        if info is None:
+            continue
         camera = model.cameras[image.camera_id]
         K, dist = camera_intrinsics(camera)
-        K, fit_warning = fit_intrinsics(K, (camera.width, camera.height), info.size, image.name,
-                                        f"{model.cameras_file} (camera {camera.camera_id})")
+        try:
+            K, fit_warning = fit_intrinsics(K, (camera.width, camera.height), info.size, image_path,
+                                            f"{model.cameras_file} (camera {camera.camera_id})")
+        except UnusableImage as error:  # another aspect ratio than its camera
+            skipped.add(error)
+            continue
         if fit_warning:
             fit_warnings.setdefault(camera.camera_id, fit_warning)
         frames.append(Frame(image_path=image_path, width=info.width, height=info.height, K=K, pose=pose))
+        usable_infos.append(info)
         distortion[image_path] = dist
     warnings += fit_warnings.values()
     metric = bool(options.metric)
-    capture = finish_capture(path, "colmap", frames, infos, model.folder, metric, warnings, what="posed photo")
+    capture = finish_capture(path, "colmap", frames, usable_infos, model.folder, metric, warnings, skipped,
+                             what="posed photo")
     return undistort_capture(capture, distortion, options, progress, cancel)

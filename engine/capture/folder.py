@@ -13,7 +13,7 @@ from typing import Optional
 
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
-from .checks import finish_capture, inspect_images
+from .checks import SkippedPhotos, finish_capture, inspect_images
 from .images import intrinsics_from_focal, list_images
 from .model import Capture, Frame
 from .options import LoadOptions
@@ -33,7 +33,9 @@ def capture_from_photos(paths: list[Path], root: Path, format: str, where: Path,
                         warnings: Optional[list[str]] = None, progress: Optional[ProgressFn] = None,
                         cancel: Optional[CancelToken] = None) -> Capture:
     """An unposed Capture of `paths` (ordered); `where` is the folder named in error messages."""
-    infos = inspect_images(paths, verify=options.verify_images, progress=progress, cancel=cancel)
+    skipped = SkippedPhotos()
+    infos = [info for info in inspect_images(paths, skipped, verify=options.verify_images, progress=progress,
+                                             cancel=cancel) if info is not None]
     frames = [Frame(image_path=info.path, width=info.width, height=info.height,
                     K=None if info.focal_px is None else intrinsics_from_focal(info.focal_px, info.width, info.height))
               for info in infos]
@@ -44,7 +46,7 @@ def capture_from_photos(paths: list[Path], root: Path, format: str, where: Path,
                         "others' intrinsics will be estimated")
     if options.metric:
         warnings.append("metric=True ignored: this capture has no poses, so its scale comes from the poses stage")
-    return finish_capture(root, format, frames, infos, where, metric=False, warnings=warnings)
+    return finish_capture(root, format, frames, infos, where, metric=False, warnings=warnings, skipped=skipped)
 
 
 def load_photo_folder(path: Path, options: LoadOptions, progress: Optional[ProgressFn] = None,

@@ -6,11 +6,12 @@ The engine's convention: pose = camera-to-world (4, 4) float64 with OpenCV camer
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
 
-from ..errors import CaptureError
+from .images import UnusableImage
 
 # Diagonal that flips the y and z camera axes: OpenGL/NeRF (y up, z backward) <-> OpenCV.
 _FLIP_YZ = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -160,12 +161,12 @@ def pinhole(fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
 
 
 def fit_intrinsics(K: np.ndarray, stated_size: tuple[int, int], image_size: tuple[int, int],
-                   image_name: str, source: str) -> tuple[np.ndarray, Optional[str]]:
+                   image_path: Path, source: str) -> tuple[np.ndarray, Optional[str]]:
     """K for the image as it is on disk when the capture file states intrinsics for another size.
 
     Same size: K unchanged. Uniformly scaled (downsampled copies, e.g. nerfstudio images_2/): K is
-    scaled and a warning returned. Different aspect ratio: CaptureError (the intrinsics cannot be
-    trusted). Sizes are (width, height).
+    scaled and a warning returned. Different aspect ratio: UnusableImage (the intrinsics cannot be
+    trusted; loaders skip the photo). Sizes are (width, height).
     """
     (sw, sh), (iw, ih) = stated_size, image_size
     if (sw, sh) == (iw, ih):
@@ -176,11 +177,11 @@ def fit_intrinsics(K: np.ndarray, stated_size: tuple[int, int], image_size: tupl
         scaled[0, :] *= sx
         scaled[1, :] *= sy
         return scaled, (f"{source} states a {sw} x {sh} camera but the images are {iw} x {ih} "
-                        f"(e.g. {image_name}): intrinsics scaled by {sx:.4g}")
+                        f"(e.g. {image_path.name}): intrinsics scaled by {sx:.4g}")
     if (sw, sh) == (ih, iw):
-        hint = (" The photo looks rotated: it probably has an EXIF orientation tag that the tool which "
-                "wrote the intrinsics ignored; strip the tag (e.g. `exiftool -Orientation= FILE`) and reload.")
+        advice = ("the photo looks rotated: it probably has an EXIF orientation tag that the tool which "
+                  "wrote the intrinsics ignored; strip the tag (e.g. `exiftool -Orientation= FILE`) and reload")
     else:
-        hint = " Use the images the intrinsics were computed for."
-    raise CaptureError(f"{source} states a {sw} x {sh} camera but image {image_name} is {iw} x {ih} "
-                       f"(a different aspect ratio).{hint}")
+        advice = "use the images the intrinsics were computed for"
+    raise UnusableImage(image_path, f"{iw} x {ih}, while {source} states a {sw} x {sh} camera "
+                                          "(a different aspect ratio)", advice)

@@ -50,39 +50,56 @@ class ImageInfo:
         return (self.width, self.height)
 
 
+class UnusableImage(CaptureError):
+    """A photo that cannot be used (unreadable, empty, corrupt, truncated, not a JPEG/PNG).
+
+    `reason` is the short form ("truncated or corrupt (...)") that a loader puts in its warning when
+    it skips the photo and goes on; str(error) is the full message naming the path and what to do.
+    """
+
+    def __init__(self, path: Path, reason: str, advice: str) -> None:
+        super().__init__(f"image {path} is {reason}: {advice}.")
+        self.path = Path(path)
+        self.reason = reason
+        self.advice = advice
+
+
 def read_image_info(path: Path, verify: bool = True) -> ImageInfo:
     """Size, orientation, EXIF focal length and content hash of one photo.
 
     With `verify`, the pixels are decoded too, at 1/8 scale through libjpeg's DCT scaling
-    (about 5 ms for a 2-megapixel JPEG), because a truncated JPEG has a valid header and OpenCV
-    would silently decode it padded with grey; Pillow raises on it. Raises CaptureError naming the
-    file when it is missing, not a JPEG/PNG, or corrupt.
+    (about 5 ms for a 2-megapixel JPEG), because a truncated JPEG has a valid header: Pillow raises
+    "image file is truncated" on it (checked with real photos cut at 50 % and 99.9 % of their bytes,
+    and with only the end-of-image marker missing). Raises UnusableImage naming the file when it is
+    unreadable, empty, not a JPEG/PNG, or corrupt.
     """
     try:
         data = path.read_bytes()
     except OSError as error:
-        raise CaptureError(f"cannot read image {path}: {error.strerror or error}. Check that the file exists "
-                           "and is readable.") from error
+        raise UnusableImage(path, f"unreadable ({error.strerror or error})",
+                            "check that the file exists and is readable") from error
+    if not data:
+        raise UnusableImage(path, "an empty file (0 bytes)", "re-copy it, or remove it from the capture")
     digest = hashlib.blake2b(data, digest_size=16).hexdigest()
     from PIL import Image  # imported here so the extension registers in a Blender without Pillow
 
     try:
         with Image.open(io.BytesIO(data)) as image:
             if image.format not in _DECODABLE_FORMATS:
-                raise CaptureError(f"image {path} is a {image.format} file, not a JPEG or PNG: convert it to "
-                                   "JPEG or PNG, or remove it from the capture.")
+                raise UnusableImage(path, f"a {image.format} file, not a JPEG or PNG",
+                                    "convert it to JPEG or PNG, or remove it from the capture")
             stored_width, stored_height = image.size
             exif = image.getexif()
             if verify:
                 image.draft(image.mode, (max(1, stored_width // 8), max(1, stored_height // 8)))
                 image.load()
-    except CaptureError:
+    except UnusableImage:
         raise
     except Exception as error:  # Pillow raises OSError, SyntaxError, ValueError... on broken files
-        raise CaptureError(f"image {path} is corrupt or not an image ({error}): re-export or re-copy it, "
-                           "or remove it from the capture.") from error
+        raise UnusableImage(path, f"corrupt, truncated or not an image ({error})",
+                            "re-export or re-copy it, or remove it from the capture") from error
     if stored_width < 1 or stored_height < 1:
-        raise CaptureError(f"image {path} has no pixels ({stored_width} x {stored_height}): remove it.")
+        raise UnusableImage(path, f"without pixels ({stored_width} x {stored_height})", "remove it")
     orientation = exif_tags.orientation(exif)
     width, height = stored_width, stored_height
     if orientation in exif_tags.TRANSPOSING_ORIENTATIONS:

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
-from .checks import finish_capture, inspect_images
+from .checks import SkippedPhotos, finish_capture, inspect_images
 from .geometry import PoseRepairs, parse_pose
 from .images import list_images
 from .model import Capture, Frame
@@ -90,8 +90,12 @@ def load_scannet(path: Path, options: LoadOptions, progress: Optional[ProgressFn
         raise CaptureError(f"no frame of {path} has a usable pose ({'; '.join(warnings)}): check the files in "
                            f"{path / 'pose'}.")
 
-    infos = inspect_images([p for p, _, _ in entries], verify=options.verify_images, progress=progress, cancel=cancel)
+    skipped = SkippedPhotos()
+    infos = inspect_images([p for p, _, _ in entries], skipped, verify=options.verify_images, progress=progress,
+                           cancel=cancel)
+    usable = [(entry, info) for entry, info in zip(entries, infos) if info is not None]
     frames = [Frame(image_path=photo, width=info.width, height=info.height, K=K.copy(), pose=pose, depth_path=depth)
-              for (photo, pose, depth), info in zip(entries, infos)]
+              for (photo, pose, depth), info in usable]
     metric = True if options.metric is None else options.metric
-    return finish_capture(path, "scannet", frames, infos, path / "color", metric, warnings, what="posed photo")
+    return finish_capture(path, "scannet", frames, [info for _, info in usable], path / "color", metric, warnings,
+                          skipped, what="posed photo")

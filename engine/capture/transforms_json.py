@@ -29,9 +29,9 @@ import numpy as np
 
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
-from .checks import finish_capture, inspect_images
+from .checks import SkippedPhotos, finish_capture, inspect_images
 from .geometry import PoseRepairs, fit_intrinsics, opengl_to_opencv, parse_pose, pinhole
-from .images import IMAGE_SUFFIXES
+from .images import IMAGE_SUFFIXES, UnusableImage
 from .model import Capture, Frame
 from .naming import name_list
 from .options import LoadOptions
@@ -92,7 +92,7 @@ def _camera_model(camera: dict[str, Any], source: Path) -> None:
                            "supported: undistort the images first and export a pinhole camera.")
 
 
-def _intrinsics(camera: dict[str, Any], image_size: tuple[int, int], image_name: str,
+def _intrinsics(camera: dict[str, Any], image_size: tuple[int, int], image_path: Path,
                 source: Path) -> tuple[np.ndarray, np.ndarray, Optional[str]]:
     """K (3, 3) for the photo as stored, distortion (5,) and an optional scaling warning."""
     _camera_model(camera, source)
@@ -102,7 +102,7 @@ def _intrinsics(camera: dict[str, Any], image_size: tuple[int, int], image_name:
     angle_x, angle_y = _number(camera, "camera_angle_x", source), _number(camera, "camera_angle_y", source)
     if fx is None:  # NeRF-synthetic style: field of view instead of focal length
         if not angle_x:
-            raise CaptureError(f"{source} gives no focal length for {image_name}: add \"fl_x\" (pixels) or "
+            raise CaptureError(f"{source} gives no focal length for {image_path.name}: add \"fl_x\" (pixels) or "
                                "\"camera_angle_x\" (radians).")
         fx = 0.5 * stated[0] / math.tan(0.5 * angle_x)
         if fy is None and angle_y:
@@ -111,7 +111,7 @@ def _intrinsics(camera: dict[str, Any], image_size: tuple[int, int], image_name:
         fy = fx
     cx, cy = _number(camera, "cx", source), _number(camera, "cy", source)
     K = pinhole(fx, fy, stated[0] / 2.0 if cx is None else cx, stated[1] / 2.0 if cy is None else cy)
-    K, warning = fit_intrinsics(K, stated, image_size, image_name, str(source))
+    K, warning = fit_intrinsics(K, stated, image_size, image_path, str(source))
     dist = np.array([_number(camera, key, source) or 0.0 for key in ("k1", "k2", "p1", "p2", "k3")])
     return K, dist, warning
 
@@ -155,15 +155,24 @@ def load_transforms(path: Path, options: LoadOptions, progress: Optional[Progres
         reasons = "; ".join(warnings) or "its frames list is empty"
         raise CaptureError(f"no usable frame in {json_path}: {reasons}. Check the file_path entries and matrices.")
 
-    infos = inspect_images([p for p, _, _ in entries], verify=options.verify_images, progress=progress, cancel=cancel)
-    frames, distortion, scale_warnings = [], {}, []
+    skipped = SkippedPhotos()
+    infos = inspect_images([p for p, _, _ in entries], skipped, verify=options.verify_images, progress=progress,
+                           cancel=cancel)
+    frames, usable_infos, distortion, scale_warnings = [], [], {}, []
     for (image_path, pose, camera), info in zip(entries, infos):
-        K, dist, warning = _intrinsics(camera, info.size, image_path.name, json_path)
+        if info is None:
+            continue
+        try:
+            K, dist, warning = _intrinsics(camera, info.size, image_path, json_path)
+        except UnusableImage as error:  # another aspect ratio than the stated camera
+            skipped.add(error)
+            continue
         if warning and not scale_warnings:
             scale_warnings.append(warning)
         frames.append(Frame(image_path=image_path, width=info.width, height=info.height, K=K, pose=pose))
+        usable_infos.append(info)
         distortion[image_path] = dist
     metric = options.metric if options.metric is not None else data.get("metric") is True
-    capture = finish_capture(path, "transforms", frames, infos, json_path, metric, warnings + scale_warnings,
-                             what="posed photo")
+    capture = finish_capture(path, "transforms", frames, usable_infos, json_path, metric, warnings + scale_warnings,
+                             skipped, what="posed photo")
     return undistort_capture(capture, distortion, options, progress, cancel)
