@@ -55,16 +55,19 @@ def test_camera_height_recovers_up_floor_and_metres():
     result = align_gravity_and_scale(moved, camera_height=1.5, points=sim.apply_points(points))
 
     aligned = [f.pose for f in result.capture.frames]
-    assert np.allclose(mean_up_direction(np.stack(aligned)), [0, 0, 1], atol=1e-9)
-    assert np.abs(result.points[is_floor, 2]).max() < 1e-9  # floor at z = 0 despite the stray points below it
-    assert np.allclose([p[2, 3] for p in aligned], [p[2, 3] for p in poses], atol=1e-9)  # true heights, metres
+    assert np.allclose(mean_up_direction(np.stack(aligned)), [0, 0, 1], atol=1e-3)  # the floor normal refines it
+    # Floor at z = 0 despite the stray points below it. Millimetres, not exactly: the floor plane is a
+    # least-squares fit on the points in its band, which include the foot of the wall.
+    assert np.abs(result.points[is_floor, 2]).max() < 1e-3
+    assert np.allclose([p[2, 3] for p in aligned], [p[2, 3] for p in poses], atol=1e-3)  # true heights, metres
     # What is left is a turn about Z and a horizontal shift: no scale, no tilt.
     errors = pose_errors(aligned, poses)
-    assert errors["scale"] == pytest.approx(1.0, abs=1e-9)
-    assert errors["rotation_deg_max"] < 1e-6 and errors["position_max"] < 1e-9
+    assert errors["scale"] == pytest.approx(1.0, abs=1e-3)
+    assert errors["rotation_deg_max"] < 0.02 and errors["position_max"] < 1e-3
+    assert result.floor_method == "plane" and "floor plane from" in result.description
     assert result.scale_source == "camera height"
     assert result.capture.metric
-    assert result.similarity.scale == pytest.approx(1 / 0.37)
+    assert result.similarity.scale == pytest.approx(1 / 0.37, rel=1e-3)
 
 
 def test_known_distance_sets_the_scale():
@@ -77,8 +80,8 @@ def test_known_distance_sets_the_scale():
                                      points=sim.apply_points(points))
     frames = {f.name: f.pose for f in result.capture.frames}
     assert np.linalg.norm(frames["000.jpg"][:3, 3] - frames["006.jpg"][:3, 3]) == pytest.approx(3.0)
-    assert np.abs(result.points[is_floor, 2]).max() < 1e-9  # the floor is still found and put at zero
-    assert np.median([p[2, 3] for p in frames.values()]) == pytest.approx(1.5 * 1.25)
+    assert np.abs(result.points[is_floor, 2]).max() < 1e-3  # the floor is still found and put at zero
+    assert np.median([p[2, 3] for p in frames.values()]) == pytest.approx(1.5 * 1.25, rel=1e-3)
     assert result.scale_source == "known distance"
 
 

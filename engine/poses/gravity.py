@@ -4,36 +4,59 @@ SfM returns a world with an arbitrary orientation, origin and scale. VoRTX expec
 gravity along -Z, so we
 1. rotate the world so the cameras' mean "up" becomes +Z. People hold phones roughly level, so
    the mean of the cameras' up vectors (OpenCV camera up is -y, i.e. -R[:, 1] in the world) is a
-   good gravity estimate; tilts up and down cancel out in the mean;
-2. find the floor as a low percentile of the sparse points' heights (robust to a few stray points
-   below the floor), then scale so the median camera height above it is `camera_height`
-   (a hand-held phone is ~1.5 m up), or scale from a known distance between two cameras;
+   good first gravity estimate; tilts up and down cancel out in the mean;
+2. find the floor as a plane in the sparse points below the cameras (RANSAC along gravity,
+   `floor.py`); when the plane is well supported its normal refines gravity. The median camera
+   height above it, set equal to `camera_height` (a hand-held phone is ~1.5 m up), gives the
+   scale, unless a known distance between two cameras or two 3D points is given;
+   when no floor plane is found, the lowest points (a low percentile of the heights) stand in
+   for the floor and the report says so; with no points below the cameras the scale is unknown;
 3. translate so the floor is at z = 0, which puts the room on Blender's ground plane.
+
+Public API (also used by Blender's Set Scale and the CLI's `--known-distance`):
+- `align_gravity_and_scale(capture, camera_height=1.5, known_distance=None, points=None,
+  align_metric=False) -> Alignment` (fields: capture, similarity, points, scale_source,
+  description, warnings, floor, floor_method, camera_height_units);
+- `KnownDistance(a, b, metres)`: each end a frame's file name (its camera centre) or a 3D point
+  (3 floats, in the capture's world before alignment);
+- `scale_from_known_distance(point_a, point_b, metres) -> float`: the factor that makes the two
+  points `metres` apart;
+- `rescale_capture(capture, factor, points=None) -> Rescaled`: poses (and sparse points) scaled
+  about the world origin; the capture is marked metric.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Optional
+from typing import Optional, Sequence, Union
 
 import numpy as np
 
 from ..capture.model import Capture, Frame
 from ..errors import PoseError
 from .align import Similarity
+from .floor import GRAVITY_MIN_INLIERS, MIN_FLOOR_POINTS, FloorPlane, find_floor_plane
 
-FLOOR_PERCENTILE = 2.0  # of point heights; tolerates up to ~2 % of points below the true floor
-MIN_FLOOR_POINTS = 20  # fewer points below the cameras than this: the floor is not seen
+FLOOR_PERCENTILE = 2.0  # fallback floor: this percentile of the heights below the cameras
+
+Endpoint = Union[str, Sequence[float], np.ndarray]  # a frame's file name, or a 3D point (3,)
 
 
 @dataclass(frozen=True)
 class KnownDistance:
-    """The user measured the distance between the cameras of two frames (by file name)."""
+    """The user measured the distance between two things seen in the capture.
 
-    frame_a: str
-    frame_b: str
+    `a` and `b` are each a frame's file name (the distance is between the two cameras) or a 3D
+    point (3,) in the capture's current world, e.g. two SfM points or two mesh vertices.
+    """
+
+    a: Endpoint
+    b: Endpoint
     metres: float
+
+    def describe(self) -> str:
+        return f"{_endpoint_text(self.a)} <-> {_endpoint_text(self.b)} = {self.metres:g} m"
 
 
 @dataclass
@@ -42,8 +65,21 @@ class Alignment:
     similarity: Similarity  # what was applied: x_new = s R x + t
     points: Optional[np.ndarray]  # (N, 3) the given points moved the same way, or None
     scale_source: str  # "camera height", "known distance", "metric capture", "unknown"
-    description: str  # one line for reports
+    description: str  # one line for reports: the scale, its source and the numbers behind it
     warnings: list[str] = field(default_factory=list)
+    floor: Optional[FloorPlane] = None  # the floor plane found (in the gravity-aligned SfM frame), if any
+    # How the floor was placed: "plane" (found in the points), "lowest points" (no plane: the
+    # lowest points stand in), "assumed" (no points below the cameras: camera_height below them),
+    # "" (metric capture, not searched).
+    floor_method: str = ""
+    camera_height_units: Optional[float] = None  # median camera height above the floor, SfM units
+
+
+@dataclass
+class Rescaled:
+    capture: Capture  # poses scaled about the origin, marked metric
+    points: Optional[np.ndarray]  # (N, 3) the given points scaled the same way, or None
+    factor: float
 
 
 def mean_up_direction(cam_to_world: np.ndarray) -> np.ndarray:
@@ -74,11 +110,11 @@ def rotation_taking(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return np.eye(3) + vx + vx @ vx / (1.0 + c)
 
 
-def floor_height(point_z: Optional[np.ndarray], camera_z: np.ndarray) -> Optional[float]:
-    """Height of the floor from points' z (N,) in a gravity-aligned world, or None when not seen.
+def lowest_points_height(point_z: Optional[np.ndarray], camera_z: np.ndarray) -> Optional[float]:
+    """Fallback floor height: a low percentile of the points' z (N,) below the cameras, or None.
 
-    The floor must lie below the cameras; points above the median camera height say nothing
-    about it, and a percentile taken over too few points below the cameras is noise.
+    Points above the median camera height say nothing about the floor, and a percentile taken
+    over too few points below the cameras is noise.
     """
     if point_z is None or len(point_z) == 0:
         return None
@@ -86,6 +122,47 @@ def floor_height(point_z: Optional[np.ndarray], camera_z: np.ndarray) -> Optiona
     if len(below) < MIN_FLOOR_POINTS:
         return None
     return float(np.percentile(below, FLOOR_PERCENTILE))
+
+
+def scale_from_known_distance(point_a: np.ndarray, point_b: np.ndarray, metres: float) -> float:
+    """The factor that makes `point_a` and `point_b` (3,) `metres` apart after scaling."""
+    if not np.isfinite(metres) or metres <= 0:
+        raise PoseError(f"known distance must be a positive number of metres, got {metres}")
+    a, b = np.asarray(point_a, dtype=np.float64).reshape(3), np.asarray(point_b, dtype=np.float64).reshape(3)
+    separation = float(np.linalg.norm(a - b))
+    if not np.isfinite(separation) or separation < 1e-9:
+        raise PoseError("known distance: the two picked points are at the same spot; pick two points further apart")
+    return metres / separation
+
+
+def rescale_capture(capture: Capture, factor: float, points: Optional[np.ndarray] = None) -> Rescaled:
+    """Scale the capture's camera positions (and `points` (N, 3)) by `factor` about the world origin.
+
+    Rotations are unchanged. The origin is the fixed point, so a floor at z = 0 stays there.
+    The capture is marked metric: a known distance is a statement in metres.
+    """
+    if not np.isfinite(factor) or factor <= 0:
+        raise PoseError(f"scale factor must be a positive number, got {factor}")
+    scale = Similarity(np.eye(3), np.zeros(3), float(factor))
+    frames = [f if f.pose is None else _moved(f, scale) for f in capture.frames]
+    moved = None if points is None else scale.apply_points(points)
+    return Rescaled(capture.with_frames(frames, metric=True), moved, float(factor))
+
+
+def endpoint_position(capture: Capture, endpoint: Endpoint) -> np.ndarray:
+    """A known-distance end as a 3D point (3,) in the capture's world: a frame's camera centre or the point itself."""
+    if isinstance(endpoint, (str, Path)):
+        return _frame_centre(capture, str(endpoint))
+    point = np.asarray(endpoint, dtype=np.float64)
+    if point.shape != (3,) or not np.all(np.isfinite(point)):
+        raise PoseError(f"known distance: {endpoint!r} is neither a frame name nor a 3D point (x, y, z)")
+    return point
+
+
+def _endpoint_text(endpoint: Endpoint) -> str:
+    if isinstance(endpoint, (str, Path)):
+        return str(endpoint)
+    return "(" + ", ".join(f"{float(v):.3g}" for v in np.asarray(endpoint).reshape(-1)) + ")"
 
 
 def _frame_centre(capture: Capture, name: str) -> np.ndarray:
@@ -124,55 +201,94 @@ def align_gravity_and_scale(
 
     poses = np.stack([f.pose for f in posed])
     rotation = rotation_taking(mean_up_direction(poses), np.array([0.0, 0.0, 1.0]))
-    rotate = Similarity(rotation, np.zeros(3), 1.0)
-    warnings: list[str] = []
-
     if capture.metric:
-        similarity = rotate
-        scale_source = "metric capture"
-        description = "metric capture: rotated to Z up, scale and position kept"
-    else:
-        camera_z = (poses[:, :3, 3] @ rotation.T)[:, 2]
-        point_z = None if points is None else (np.asarray(points, dtype=np.float64) @ rotation.T)[:, 2]
-        floor = floor_height(point_z, camera_z)
-        if known_distance is not None:
-            a = _frame_centre(capture, known_distance.frame_a)
-            b = _frame_centre(capture, known_distance.frame_b)
-            separation = float(np.linalg.norm(a - b))
-            if separation < 1e-9:
-                raise PoseError(
-                    f"known distance: frames {known_distance.frame_a!r} and {known_distance.frame_b!r} "
-                    "were placed at the same spot; pick two frames taken further apart"
-                )
-            scale = known_distance.metres / separation
-            scale_source = "known distance"
-            description = (
-                f"scale from {known_distance.frame_a} <-> {known_distance.frame_b} = {known_distance.metres:g} m"
-            )
-        elif floor is not None:
-            height = float(np.median(camera_z)) - floor
-            scale = camera_height / height
-            scale_source = "camera height"
-            description = f"scale from a camera height of {camera_height:g} m above the floor seen in the points"
-        else:
-            scale = 1.0
-            scale_source = "unknown"
-            description = "scale unknown (no floor points): SfM units kept"
-            warnings.append(
-                "the floor is not visible in the sparse points, so the scale is unknown; "
-                "give a known distance between two photos to get metres"
-            )
-        # Floor at z = 0. Without a visible floor, assume the cameras are camera_height above it
-        # (in metres when the scale is known, else in SfM units: only the origin is a guess then).
-        floor_z = floor if floor is not None else float(np.median(camera_z)) - camera_height / scale
-        similarity = rotate.then(Similarity(np.eye(3), np.array([0.0, 0.0, -scale * floor_z]), scale))
+        return _finish(capture, Similarity(rotation, np.zeros(3), 1.0), points, "metric capture",
+                       "metric capture: rotated to Z up, scale and position kept", [], None, "", None)
 
+    warnings: list[str] = []
+    centres = poses[:, :3, 3] @ rotation.T
+    moved_points = None if points is None else np.asarray(points, dtype=np.float64).reshape(-1, 3) @ rotation.T
+    search = find_floor_plane(moved_points, centres)
+    gravity_note = ""
+    if search.plane is not None and search.plane.inliers >= GRAVITY_MIN_INLIERS:
+        # A floor seen by many points measures "up" better than hand-held cameras' mean up, which
+        # cameras looking down tilt by 10 degrees and more. Search again in the corrected frame:
+        # "below the cameras" and the inlier band both depend on where up is.
+        tilt = search.plane.tilt_deg
+        refine = rotation_taking(search.plane.normal, np.array([0.0, 0.0, 1.0]))
+        rotation = refine @ rotation
+        centres, moved_points = centres @ refine.T, moved_points @ refine.T
+        search = find_floor_plane(moved_points, centres)
+        if tilt >= 0.05:
+            gravity_note = f"; gravity refined by the floor's normal ({tilt:.1f} deg from the cameras' mean up)"
+    plane = search.plane
+    camera_z = float(np.median(centres[:, 2]))
+
+    if plane is not None:
+        height = float(np.median(plane.heights(centres)))
+        floor_z = camera_z - height
+        floor_method = "plane"
+        floor_text = (f"floor plane from {plane.inliers} points (RANSAC inliers {100 * plane.inlier_share:.0f} % "
+                      f"of the {plane.candidates} points below the cameras), median camera height {height:.3g} units")
+    else:
+        lowest = lowest_points_height(None if moved_points is None else moved_points[:, 2], centres[:, 2])
+        height = None if lowest is None else camera_z - lowest
+        floor_z = lowest
+        floor_method = "lowest points" if lowest is not None else "assumed"
+        if lowest is not None:
+            floor_text = (f"no floor plane found in the sparse points ({search.reason}): the lowest points are taken "
+                          f"as the floor, median camera height {height:.3g} units")
+        else:
+            floor_text = f"no floor found in the sparse points ({search.reason})"
+
+    if known_distance is not None:
+        scale = scale_from_known_distance(endpoint_position(capture, known_distance.a),
+                                          endpoint_position(capture, known_distance.b), known_distance.metres)
+        scale_source = "known distance"
+        description = f"scale from a known distance {known_distance.describe()} -> scaled x{scale:.3g}; {floor_text}"
+        if floor_method != "plane":
+            warnings.append(f"{floor_text}; the floor (z = 0) is only a guess")
+    elif height is not None and height > 0:
+        scale = camera_height / height
+        scale_source = "camera height"
+        description = f"{floor_text} -> scaled x{scale:.3g} to {camera_height:g} m"
+        if floor_method == "lowest points":
+            warnings.append(
+                f"{floor_text}: the scale from the {camera_height:g} m camera height assumes the lowest points lie on "
+                "the floor, so the size may be off; check it, or set the scale from a known distance"
+            )
+    else:
+        scale = 1.0
+        scale_source = "unknown"
+        description = f"{floor_text}: scale unknown, SfM units kept"
+        warnings.append(f"{floor_text}, so the scale is unknown; give a known distance between two photos or "
+                        "two points to get metres")
+    description += gravity_note
+    # Floor at z = 0. Without a visible floor, assume the cameras are camera_height above it
+    # (in metres when the scale is known, else in SfM units: only the origin is a guess then).
+    if floor_z is None:
+        floor_z = camera_z - camera_height / scale
+    similarity = Similarity(rotation, np.zeros(3), 1.0).then(Similarity(np.eye(3), np.array([0.0, 0.0, -scale * floor_z]), scale))
+    return _finish(capture, similarity, points, scale_source, description, warnings, search.plane, floor_method, height)
+
+
+def _finish(
+    capture: Capture,
+    similarity: Similarity,
+    points: Optional[np.ndarray],
+    scale_source: str,
+    description: str,
+    warnings: list[str],
+    floor: Optional[FloorPlane],
+    floor_method: str,
+    height_units: Optional[float],
+) -> Alignment:
     frames = [f if f.pose is None else _moved(f, similarity) for f in capture.frames]
     moved_points = None if points is None else similarity.apply_points(points)
     metric = capture.metric or scale_source in ("camera height", "known distance")
     aligned = capture.with_frames(frames, metric=metric)
-    description += f" (scale x{similarity.scale:.4g})"
-    return Alignment(aligned, similarity, moved_points, scale_source, description, warnings)
+    return Alignment(aligned, similarity, moved_points, scale_source, description, warnings, floor, floor_method,
+                     height_units)
 
 
 def _moved(frame: Frame, similarity: Similarity) -> Frame:
