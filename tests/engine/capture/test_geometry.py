@@ -10,7 +10,6 @@ decomposition).
 from __future__ import annotations
 
 import re
-from pathlib import Path
 
 import numpy as np
 import pytest
