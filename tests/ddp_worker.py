@@ -11,8 +11,10 @@ from pathlib import Path
 import torch
 
 from engine.train.config import config_from_dict
-from engine.train.dataset import CropDataset, CropSettings, box_room
+from engine.train.batching import CropDataset
+from engine.train.crops import CropSettings
 from engine.train.loop import CHECKPOINT, Trainer
+from fixtures_rooms import box_room
 
 
 def main(out_dir: str, steps: int, resume: bool) -> None:

@@ -231,7 +231,7 @@ def write_scannet(folder: Path, poses: Sequence[np.ndarray], K: np.ndarray, size
 
 
 def write_room_scene(folder: Path, room) -> Path:
-    """A `engine.train.dataset.RoomData` (e.g. `box_room()`) written in the ScanNet layout with its
+    """A `engine.train.rooms.RoomData` (e.g. `box_room()`) written in the ScanNet layout with its
     exact depth as 16-bit millimetres: what `python -m engine synth` writes, minus the ground truth."""
     for name in ("color", "depth", "pose", "intrinsic"):
         (folder / name).mkdir(parents=True, exist_ok=True)

@@ -170,7 +170,7 @@ def test_nan_vertices_are_ignored():
 
 
 def _box_room_views():
-    from engine.train.dataset import box_room
+    from fixtures_rooms import box_room
 
     room = box_room(size=(3.0, 2.6, 2.4), n_frames=6, image_size=(64, 48))
     return room, [(K, pose, depth) for K, pose, depth in zip(room.K, room.poses, room.depths)]

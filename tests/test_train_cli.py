@@ -10,7 +10,7 @@ import torch
 
 from engine.__main__ import main as engine_main
 from engine.model.weights import load_weights
-from engine.train.dataset import box_room
+from fixtures_rooms import box_room
 from fixtures_capture import write_room_scene
 
 

@@ -1,4 +1,5 @@
-"""Training crops and targets (engine.train.dataset) against hand-made TSDFs and an analytic box room."""
+"""Training crops and targets (engine.train.crops, engine.train.batching) against hand-made TSDFs and an
+analytic box room."""
 
 from __future__ import annotations
 
@@ -6,16 +7,10 @@ import numpy as np
 import pytest
 import torch
 
-from engine.train.dataset import (
-    CropSettings,
-    RoomSampler,
-    box_room,
-    crop_transform,
-    make_crop,
-    make_targets,
-    resample_tsdf,
-    select_keyframes,
-)
+from engine.geometry.view_selection import select_keyframes
+from engine.train.batching import RoomSampler
+from engine.train.crops import CropSettings, crop_targets, crop_transform, make_crop, resample_tsdf
+from fixtures_rooms import box_room
 
 
 def _free(shape):
@@ -25,7 +20,7 @@ def _free(shape):
 def test_dilation_targets_single_surface_voxel():
     t = _free((8, 8, 8))
     t[3, 3, 3] = 0.0  # one surface voxel, everything else observed free
-    tg = make_targets(t)
+    tg = crop_targets(t)
     # fine: occupancy |t| < .999 only at (3,3,3); everything observed -> supervised
     assert tg.mask[2].all()
     # medium: dilate3 covers fine 2..4 per axis; strided pick keeps even fine indices 2, 4 -> medium 1, 2
@@ -42,7 +37,7 @@ def test_notocc_excludes_dilated_neighbourhood_and_unseen():
     t = _free((8, 8, 8))
     t[3, 3, 3] = 0.0
     t[6:, 6:, :4] = 1.0  # unobserved voxels (not whole columns)
-    tg = make_targets(t)
+    tg = crop_targets(t)
     occ08, mask08 = tg.occ[1], tg.mask[1]
     # medium (3,3,0) <- fine (6,6,0): unobserved, not occupied, its column is partly seen -> ignored
     assert not mask08[3, 3, 0] and occ08[3, 3, 0] == 0
@@ -57,7 +52,7 @@ def test_unobserved_columns_are_supervised_empty():
     t[2, 2, 2] = 0.5
     t[0, 0, :] = 1.0  # a whole unobserved z-column
     t[5, 5, :3] = 1.0  # a partly unobserved column
-    tg = make_targets(t)
+    tg = crop_targets(t)
     assert tg.mask[2][0, 0, :].all() and (tg.tsdf[0, 0, :] == 1).all()
     assert not tg.mask[2][5, 5, :3].any()
     # medium column (0,0) <- fine (0,0): all unseen -> supervised with occupancy 0

@@ -12,8 +12,10 @@ import torch
 from torch import nn
 
 from engine.train.config import config_from_dict, load_config
-from engine.train.dataset import CropDataset, CropSettings, box_room
+from engine.train.batching import CropDataset
+from engine.train.crops import CropSettings
 from engine.train.loop import TrainingModule, Trainer, bn_modules, trunk_modules
+from fixtures_rooms import box_room
 
 TINY_MODEL = {"feature_channels": [8, 8, 8], "unet_base_widths": [4, 4, 4], "max_train_voxels": [2048, 4096]}
 

@@ -15,11 +15,10 @@ import numpy as np
 from ..capture import Capture, Frame
 from ..errors import CaptureError, PoseError
 from ..jobs import CancelToken, ProgressCallback, check, report
+from ..geometry.view_selection import select_keyframes
 from .bounds import SceneBounds, scene_bounds
-from .keyframes import select_keyframes
 from .settings import ReconSettings
-from .tiles import Tile, TileState, VoxelGrid, make_tiles
-from .view_selection import select_views_for_tile
+from .tiles import Tile, TileState, VoxelGrid, make_tiles, select_views_for_tile
 
 
 @dataclass
@@ -77,7 +76,7 @@ def plan_reconstruction(
     report(progress, "keyframes", 0, 1)
     all_poses = np.stack([capture.frames[i].pose for i in usable]).astype(np.float64)
     kept = select_keyframes(all_poses, settings.keyframe_translation, settings.keyframe_angle_deg)
-    ids = [usable[k] for k in kept]
+    ids = [usable[int(k)] for k in kept]
     frames = [capture.frames[i] for i in ids]
     Ks = np.stack([f.K for f in frames]).astype(np.float64)
     poses = all_poses[kept]

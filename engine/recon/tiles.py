@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 
+from ..geometry.view_selection import select_views
 from .bounds import SceneBounds
 from .settings import COARSE_FACTOR
 
@@ -111,6 +113,33 @@ def make_tiles(bounds: SceneBounds, voxel_size: float, tile_size: int, tile_heig
 BOX_EDGES = np.array(
     [[0, 1], [2, 3], [4, 5], [6, 7], [0, 2], [1, 3], [4, 6], [5, 7], [0, 4], [1, 5], [2, 6], [3, 7]], dtype=np.int32
 )
+
+
+def tile_coarse_points(tile: Tile, grid: VoxelGrid, within: Optional[SceneBounds] = None) -> np.ndarray:
+    """World positions (M, 3) of the tile's coarse voxels (corner convention), optionally only those
+    inside the scene bounds (the ones the driver fuses)."""
+    indices = grid.level_indices(tile, COARSE_FACTOR, within)
+    return grid.origin + indices * (grid.voxel_size * COARSE_FACTOR)
+
+
+def select_views_for_tile(
+    tile: Tile,
+    grid: VoxelGrid,
+    Ks: np.ndarray,
+    poses: np.ndarray,
+    sizes: np.ndarray,
+    max_views: int,
+    seed: int,
+    within: Optional[SceneBounds] = None,
+) -> np.ndarray:
+    """Keyframe positions (<= max_views,) int64, sorted, that see the tile's coarse voxels (its part
+    inside `within` when given); empty when none does. Ks, poses, sizes are the keyframes'.
+
+    The rule is training's (engine.geometry.view_selection.select_views). Sampling is seeded per tile
+    with (seed, tile index), so a tile's views do not depend on how many other tiles there are.
+    """
+    rng = np.random.default_rng([seed, *tile.index])
+    return select_views(tile_coarse_points(tile, grid, within), Ks, poses, sizes, np.arange(len(poses)), max_views, rng)
 
 
 def tile_grid(tiles: list[Tile]) -> tuple[np.ndarray, np.ndarray, list[str]]:

@@ -33,7 +33,6 @@ class TrainConfig:
     rooms: list[str] = field(default_factory=list)  # room folders, or folders holding room folders
     model: dict[str, Any] = field(default_factory=dict)  # VortxConfig fields (incl. max_train_voxels)
     crop_size: tuple[int, int, int] = (32, 32, 24)  # fine (4 cm) voxels; must be a multiple of 4
-    voxel_size: float = 0.04
     n_views: int = 8
     image_size: tuple[int, int] = (160, 120)  # (W, H) the images are resized to
     augment_rotate: bool = True
@@ -81,6 +80,9 @@ class TrainConfig:
 
 def _build(cls, data: dict[str, Any], where: str):
     known = {f.name: f for f in fields(cls)}
+    if cls is TrainConfig and "voxel_size" in data:
+        raise VortxError(f"{where}: voxel_size is not a training setting (crops use the voxel size of each room's "
+                         "ground-truth TSDF, 4 cm); remove the key")
     unknown = sorted(set(data) - set(known))
     if unknown:
         raise VortxError(f"{where}: unknown key(s) {', '.join(unknown)}; known keys: {', '.join(sorted(known))}")

@@ -32,7 +32,9 @@ from torch import nn
 from ..errors import VortxError
 from . import losses as L
 from .config import PhaseConfig, TrainConfig
-from .dataset import CropDataset, CropSettings, RoomSampler, TrainBatch, find_rooms
+from ..data.room_folders import find_rooms
+from .batching import CropDataset, RoomSampler, TrainBatch
+from .crops import CropSettings
 
 LEVELS = 3
 CHECKPOINT = "checkpoint.pt"
@@ -278,7 +280,7 @@ class Trainer:
                 raise VortxError(f"no rooms found in {cfg.rooms}; render some with `python -m engine synth`")
             dataset = CropDataset(rooms, CropSettings(
                 tuple(cfg.crop_size), cfg.n_views, cfg.augment_rotate, cfg.augment_mirror, cfg.augment_photometric,
-                cfg.augment_noise), image_size=cfg.image_size, voxel_size=cfg.voxel_size)
+                cfg.augment_noise), image_size=cfg.image_size)
         self.dataset = dataset
         self.sampler = RoomSampler(len(dataset), cfg.seed, self.dist.rank, self.dist.world_size)
         if net is None:

@@ -45,8 +45,9 @@ def unobserved_columns(seen: torch.Tensor) -> torch.Tensor:
 
 
 def supervised_mask(tsdf: torch.Tensor) -> torch.Tensor:
-    """Fine-level supervised set: (t < .999) | column entirely > .999. tsdf: (X, Y, Z) float."""
-    return (tsdf < SEEN_LIMIT) | (tsdf > SEEN_LIMIT).all(dim=-1, keepdim=True).expand_as(tsdf)
+    """Fine-level supervised set: seen (t < .999) or in a z-column with no seen voxel. tsdf: (X, Y, Z) float."""
+    seen = tsdf < SEEN_LIMIT
+    return seen | unobserved_columns(seen)
 
 
 def dilate(mask: torch.Tensor) -> torch.Tensor:
