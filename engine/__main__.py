@@ -22,6 +22,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "synth": (".data.cli", "render synthetic rooms with Blender (ScanNet layout + ground truth)"),
     "train": (".train.cli", "train VoRTX from a config file"),
     "eval": (".eval.cli", "evaluate a predicted mesh against ground truth (Atlas metrics)"),
+    "eval-weights": (".eval.heldout", "reconstruct held-out rendered rooms with trained weights and score them"),
 }
 
 

@@ -19,7 +19,7 @@ from engine.capture import load_capture, load_image  # noqa: E402
 from engine.mesh_io import read_ply  # noqa: E402
 from engine.meshops import subdivide  # noqa: E402
 from engine.geometry.depth_render import render_depth  # noqa: E402
-from engine.train.evaluate import shade  # noqa: E402
+from engine.geometry.depth_render import shade  # noqa: E402
 
 
 def main(argv=None) -> int:

@@ -225,7 +225,7 @@ def box_room_mesh(blender, extra_piece: bool = False):
 @pytest.fixture
 def fake_engine(blender, monkeypatch):
     """driver.reconstruct returns outcome["mesh"] (or raises outcome["error"]); records its calls."""
-    ReconResult = importlib.import_module(f"{blender.__name__}.engine.recon.result").ReconResult
+    ReconResult = importlib.import_module(f"{blender.__name__}.engine.recon.recon_result").ReconResult
     TileState = blender.engine.recon.TileState
     outcome: dict = {"mesh": box_room_mesh(blender)}
     calls: list = []
@@ -311,7 +311,7 @@ def test_failures_report_and_change_nothing(blender, capture_dir, fake_engine, b
     if breakage == "engine error":
         outcome["error"] = blender.engine.errors.WeightsError("the default VoRTX weights are not installed")
     elif breakage == "empty mesh":
-        outcome["mesh"] = importlib.import_module(f"{blender.__name__}.engine.recon.result").empty_mesh()
+        outcome["mesh"] = importlib.import_module(f"{blender.__name__}.engine.recon.recon_result").empty_mesh()
         outcome["message"] = "nothing was occupied"
     elif breakage == "all pieces too small":
         scene.vortx.min_piece_faces = 1000
@@ -512,7 +512,7 @@ def test_modal_run_shows_tiles_in_the_status_bar_and_esc_cancels(blender, captur
     import time
 
     TileState = blender.engine.recon.TileState
-    ReconResult = importlib.import_module(f"{blender.__name__}.engine.recon.result").ReconResult
+    ReconResult = importlib.import_module(f"{blender.__name__}.engine.recon.recon_result").ReconResult
     fusing, finish = threading.Event(), threading.Event()
 
     def engine(capture, settings, progress=None, cancel=None, plan=None):

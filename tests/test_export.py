@@ -10,7 +10,7 @@ import pycolmap
 import pytest
 
 from engine.capture import load_capture
-from engine.capture.export import rotation_to_quaternion, write_colmap_text, write_scannet
+from engine.capture.writers import rotation_to_quaternion, write_colmap_text, write_scannet
 from engine.capture.geometry import quaternion_to_rotation
 from engine.capture.model import Capture, Frame
 from engine.errors import CaptureError

@@ -9,7 +9,7 @@ import torch
 
 from engine.geometry.cameras import look_at as camera_look_at
 from engine.model import VortxConfig, VortxNet
-from engine.model.fusion import ViewAttention, masked_mean_pool, softmax_null_pool
+from engine.model.view_fusion import ViewAttention, masked_mean_pool, softmax_null_pool
 
 H, W = 48, 64
 TINY = dict(backbone="mnasnet", feature_channels=(16, 8, 8), unet_base_widths=(4, 4, 4))

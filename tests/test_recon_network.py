@@ -37,7 +37,7 @@ def test_a_weights_file_round_trips(tmp_path):
 
 def test_shipping_weights_with_scene_norm_statistics_switches_every_3d_batchnorm(tmp_path):
     from engine.sparse import SparseBatchNorm
-    from engine.train.evaluate import ship_weights
+    from engine.model.weights import ship_weights
 
     model, config, _ = load_network("random", 3, CPU)
     trained = model_weights.save_weights(model, config, tmp_path / "trained.safetensors")

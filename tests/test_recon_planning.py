@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from engine.recon.bounds import SceneBounds, scene_bounds
+from engine.recon.scene_bounds import SceneBounds, scene_bounds
 from engine.geometry.cameras import look_along as look_pose
 from engine.geometry.view_selection import select_keyframes
 from engine.recon.tiles import BOX_EDGES, TileState, make_tiles, select_views_for_tile, tile_coarse_points, tile_grid
@@ -120,7 +120,7 @@ def test_view_selection_is_seeded_and_only_returns_views_that_see_the_tile():
 
 def test_planning_and_the_tile_overlay_data_do_not_import_torch():
     code = ("import sys, numpy as np; from engine.recon import tile_grid, plan_reconstruction; "
-            "from engine.recon.tiles import make_tiles; from engine.recon.bounds import SceneBounds; "
+            "from engine.recon.tiles import make_tiles; from engine.recon.scene_bounds import SceneBounds; "
             "g, t = make_tiles(SceneBounds(np.zeros(3), np.ones(3), (False,) * 3), 0.04, 96, 48); tile_grid(t); "
             "assert 'torch' not in sys.modules, 'torch was imported'")
     subprocess.run([sys.executable, "-c", code], check=True, cwd=str(Path(__file__).parents[1]))

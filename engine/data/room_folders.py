@@ -69,7 +69,7 @@ def precompute_room(room: Path, force: bool = False, progress=None) -> Path:
     `tsdf_gt_04.npz` (TsdfVolume format) beside it."""
     from ..capture import load_capture
     from ..geometry.cameras import scale_intrinsics
-    from ..tsdf.fusion import fuse_ground_truth
+    from ..tsdf.integration import fuse_ground_truth
 
     out = Path(room) / GT_FILE
     if not force:

@@ -1,7 +1,7 @@
 """Depth maps of a triangle mesh seen from a posed camera (a numpy z-buffer, no GPU, no Blender).
 
 Used by vertex colouring (occlusion), the depth metrics of `engine.eval`, the held-out evaluation
-picture and the capture-view picture script. Pixel convention: pixel (row i, column j) covers
+picture and the capture-view picture script; `shade` turns a depth map into a grey picture. Pixel convention: pixel (row i, column j) covers
 u in [j, j + 1), v in [i, i + 1) (engine/geometry/cameras.py).
 """
 
@@ -55,3 +55,20 @@ def render_depth(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, pose: n
             inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
             np.minimum.at(depth, row[inside] * w + col[inside], points[inside, 2])
     return depth.reshape(h, w).astype(np.float32)
+
+
+def shade(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Grey-shaded uint8 image of a depth map (normals from depth gradients, headlight)."""
+    h, w = depth.shape
+    valid = np.isfinite(depth)
+    d = np.where(valid, depth, 0.0)
+    u, v = np.meshgrid(np.arange(w), np.arange(h))
+    pts = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], -1)
+    dx = np.gradient(pts, axis=1)
+    dy = np.gradient(pts, axis=0)
+    n = np.cross(dx, dy)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True) + 1e-12
+    light = np.abs(n[..., 2])
+    img = (40 + 200 * light).clip(0, 255)
+    img[~valid] = 255
+    return img.astype(np.uint8)

@@ -28,7 +28,7 @@ from .backprojection import Projection, project_to_feature_maps, sample_features
 from .coarse_to_fine import Upsampler, subsample_per_sample
 from .config import LEVEL_IMAGE_STRIDES, LEVEL_NAMES, VortxConfig
 from .fpn import FeaturePyramid
-from .fusion import AverageFusion, TransformerFusion
+from .view_fusion import AverageFusion, TransformerFusion
 from .outputs import FusionOutput, LevelOutput, LevelPrediction, VortxBatch
 from .unet3d import SparseUNet
 from .view_encoding import ViewDirectionEncoder

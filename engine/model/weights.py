@@ -91,3 +91,22 @@ def load_weights(path: str | Path, device: str | torch.device = "cpu"):
     model = VortxNet(config)
     load_state_into(model, state, str(path))
     return model.to(device).eval(), config
+
+
+def ship_weights(src: Path, dst: Path, half: bool = True, config_changes: dict | None = None) -> Path:
+    """Copy trained weights to the shipped location (safetensors + JSON sidecar), optionally with
+    floating-point tensors stored as float16 (half the size; they load back into float32) and
+    inference-only config fields changed (e.g. {"sparse_norm_statistics": "scene"})."""
+    import dataclasses
+
+    config = dataclasses.replace(read_config(src), **(config_changes or {}))
+    tensors = {}
+    with safe_open(str(src), framework="pt") as f:
+        for key in f.keys():
+            t = f.get_tensor(key)
+            tensors[key] = t.half() if half and t.is_floating_point() else t
+    dst = Path(dst)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    save_file(tensors, str(dst), metadata={FORMAT_KEY: FORMAT, CONFIG_KEY: config.to_json()})
+    sidecar_path(dst).write_text(config.to_json() + "\n")
+    return dst

@@ -49,7 +49,7 @@ def _known_distance(values: list[str] | None) -> KnownDistance | None:
 
 def run(args: argparse.Namespace) -> int:
     from ..capture import load_capture
-    from ..capture.export import write_colmap_text, write_scannet
+    from ..capture.writers import write_colmap_text, write_scannet
 
     known_distance = _known_distance(args.known_distance)
     options = SfmOptions(matcher=args.matcher, max_side=args.max_side, intrinsics=args.intrinsics, work_dir=args.work_dir)

@@ -34,7 +34,7 @@ def __getattr__(name: str) -> Any:
 
         return reconstruct
     if name == "ReconResult":
-        from .result import ReconResult
+        from .recon_result import ReconResult
 
         return ReconResult
     raise AttributeError(name)

@@ -23,14 +23,14 @@ from ..mesh_io import Mesh
 from ..model.outputs import tsdf_from_logits
 from .colour import ColourView, colour_vertices
 from .features import FeatureCache, encode_keyframes, keyframe_image_size
-from .fusion import fuse_tile
+from .tile_fusion import fuse_tile
 from ..geometry.cameras import scale_intrinsics
 from .images import load_resized, resized_size
 from .memory import PeakMemory
 from .mesh import extract_mesh
 from .network import load_network
 from .plan import ReconPlan, plan_reconstruction
-from .result import ReconResult, empty_mesh
+from .recon_result import ReconResult, empty_mesh
 from .settings import LEVEL_SCALES, ReconSettings, level_label
 from .tiles import TileState
 

@@ -13,7 +13,7 @@ import numpy as np
 from skimage.measure import marching_cubes
 
 from ..mesh_io import Mesh
-from .result import empty_mesh
+from .recon_result import empty_mesh
 
 
 def dense_volume(indices: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

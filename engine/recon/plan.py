@@ -16,7 +16,7 @@ from ..capture import Capture, Frame
 from ..errors import CaptureError, PoseError
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..geometry.view_selection import select_keyframes
-from .bounds import SceneBounds, scene_bounds
+from .scene_bounds import SceneBounds, scene_bounds
 from .settings import ReconSettings
 from .tiles import Tile, TileState, VoxelGrid, make_tiles, select_views_for_tile
 

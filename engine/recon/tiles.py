@@ -17,7 +17,7 @@ from typing import Optional
 import numpy as np
 
 from ..geometry.view_selection import select_views
-from .bounds import SceneBounds
+from .scene_bounds import SceneBounds
 from .settings import COARSE_FACTOR
 
 

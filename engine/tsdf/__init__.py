@@ -3,8 +3,8 @@
 Voxel positions are voxel CORNERS: `index * voxel_size + origin` (grid.py).
 """
 
-from .bounds import frustum_bounds, volume_from_bounds
-from .fusion import finalize_tsdf, fuse_ground_truth, fuse_tsdf
+from .volume_bounds import frustum_bounds, volume_from_bounds
+from .integration import finalize_tsdf, fuse_ground_truth, fuse_tsdf
 from .grid import voxel_positions, world_to_voxel
 from .targets import (
     LevelTargets,

@@ -1,4 +1,4 @@
-"""Held-out evaluation of trained weights and the picture for the model card.
+"""`python -m engine eval-weights`: held-out evaluation of trained weights and the picture for the model card.
 
 For every held-out room (rendered, never used in training): reconstruct it with `engine.recon`
 from its colour frames and poses only, then the Atlas metrics (`engine.eval.evaluate_mesh`, trimmed
@@ -8,6 +8,7 @@ truth (`engine.eval.room_box_from_tsdf`) is measured the same way as the floor.
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from pathlib import Path
@@ -16,6 +17,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..data.room_folders import find_rooms, precompute_room
+from ..errors import VortxError
 
 DEPTH_EVERY = 4  # frames for the depth metrics: every 4th (10 of a rendered room's 40)
 DEPTH_KEYS = ("AbsRel", "AbsDiff", "r1", "complete")
@@ -97,31 +99,14 @@ def metrics_table(result: dict) -> str:
 # Picture: shaded renders of meshes side by side (numpy rasteriser engine.geometry.depth_render)
 
 
-def shade(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """Grey-shaded uint8 image of a depth map (normals from depth gradients, headlight)."""
-    h, w = depth.shape
-    valid = np.isfinite(depth)
-    d = np.where(valid, depth, 0.0)
-    u, v = np.meshgrid(np.arange(w), np.arange(h))
-    pts = np.stack([(u - K[0, 2]) / K[0, 0] * d, (v - K[1, 2]) / K[1, 1] * d, d], -1)
-    dx = np.gradient(pts, axis=1)
-    dy = np.gradient(pts, axis=0)
-    n = np.cross(dx, dy)
-    n /= np.linalg.norm(n, axis=-1, keepdims=True) + 1e-12
-    light = np.abs(n[..., 2])
-    img = (40 + 200 * light).clip(0, 255)
-    img[~valid] = 255
-    return img.astype(np.uint8)
-
-
 def render_side_by_side(meshes: Sequence, labels: Sequence[str], out_path: Path, size=(320, 240),
                         clip_above: Optional[float] = None) -> Path:
     """One elevated view of each mesh (same camera), ceilings clipped, written as one PNG."""
     import cv2
 
-    from ..meshops import subdivide
     from ..geometry.cameras import look_at
-    from ..geometry.depth_render import render_depth
+    from ..geometry.depth_render import render_depth, shade
+    from ..meshops import subdivide
 
     ref = np.asarray(meshes[-1].vertices, np.float64)
     lo, hi = ref.min(0), ref.max(0)
@@ -154,47 +139,27 @@ def save_json(obj: dict, path: Path) -> None:
     Path(path).write_text(json.dumps(obj, indent=2))
 
 
-def ship_weights(src: Path, dst: Path, half: bool = True, config_changes: dict | None = None) -> Path:
-    """Copy trained weights to the shipped location (safetensors + JSON sidecar), optionally with
-    floating-point tensors stored as float16 (half the size; they load back into float32) and
-    inference-only config fields changed (e.g. {"sparse_norm_statistics": "scene"})."""
-    import dataclasses
-
-    from safetensors import safe_open
-    from safetensors.torch import save_file
-
-    from ..model.weights import CONFIG_KEY, FORMAT, FORMAT_KEY, read_config, sidecar_path
-
-    config = dataclasses.replace(read_config(src), **(config_changes or {}))
-    tensors = {}
-    with safe_open(str(src), framework="pt") as f:
-        for key in f.keys():
-            t = f.get_tensor(key)
-            tensors[key] = t.half() if half and t.is_floating_point() else t
-    dst = Path(dst)
-    dst.parent.mkdir(parents=True, exist_ok=True)
-    save_file(tensors, str(dst), metadata={FORMAT_KEY: FORMAT, CONFIG_KEY: config.to_json()})
-    sidecar_path(dst).write_text(config.to_json() + "\n")
-    return dst
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--rooms", nargs="+", required=True, help="held-out room folders, or folders holding them")
+    parser.add_argument("--weights", nargs="+", required=True, help="LABEL=PATH (.safetensors); PATH may be 'random'")
+    parser.add_argument("--out", default="runs/eval", help="folder for metrics.json and the predicted meshes")
+    parser.add_argument("--image-size", type=int, default=128, help="reconstruction image long side (pixels)")
+    parser.add_argument("--views", type=int, default=12, help="views per tile")
+    parser.add_argument("--frustum-depth", type=float, default=3.0, help="scene bounds: frusta cut at this depth (m)")
+    parser.add_argument("--max-room-size", type=float, nargs=3, default=[7.0, 7.0, 3.5], help="clip the bounds (m)")
+    parser.add_argument("--no-box", action="store_true", help="skip the room-box baseline")
+    parser.add_argument("--picture", default=None, help="PNG: first room, first weights vs ground truth")
 
 
-def main(argv=None) -> int:
-    """python -m engine.train.evaluate --rooms DIR --weights LABEL=PATH ... [--picture PNG]"""
-    import argparse
-
-    ap = argparse.ArgumentParser(description="held-out evaluation of trained VoRTX weights")
-    ap.add_argument("--rooms", nargs="+", required=True)
-    ap.add_argument("--weights", nargs="+", required=True, help="LABEL=PATH")
-    ap.add_argument("--out", default="runs/eval")
-    ap.add_argument("--image-size", type=int, default=128)
-    ap.add_argument("--views", type=int, default=12)
-    ap.add_argument("--frustum-depth", type=float, default=3.0)
-    ap.add_argument("--max-room-size", type=float, nargs=3, default=[7.0, 7.0, 3.5])
-    ap.add_argument("--no-box", action="store_true", help="skip the room-box baseline")
-    ap.add_argument("--picture", default=None, help="PNG: first room, first weights vs ground truth")
-    args = ap.parse_args(argv)
+def run(args: argparse.Namespace) -> int:
+    """`python -m engine eval-weights --rooms DIR --weights LABEL=PATH ... [--picture PNG]`."""
+    bad = [w for w in args.weights if "=" not in w]
+    if bad:
+        raise VortxError(f"--weights takes LABEL=PATH, got {', '.join(bad)}")
     weights = dict(w.split("=", 1) for w in args.weights)
     rooms = find_rooms(args.rooms)
+    if not rooms:
+        raise VortxError(f"no room folders found in {', '.join(args.rooms)}")
     overrides = dict(image_long_side=args.image_size, views=args.views, frustum_depth=args.frustum_depth,
                      max_room_size=tuple(args.max_room_size))
     out = Path(args.out)
@@ -211,7 +176,3 @@ def main(argv=None) -> int:
         gt = read_ply(room / "mesh_gt.ply")
         render_side_by_side([pred, gt], [f"{label} ({room.name})", "ground truth"], Path(args.picture))
     return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

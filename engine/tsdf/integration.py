@@ -22,7 +22,7 @@ import torch
 
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..geometry.cameras import frustum_corners, projection_matrix
-from .bounds import frustum_bounds, volume_from_bounds
+from .volume_bounds import frustum_bounds, volume_from_bounds
 from .grid import axis_positions
 from .volume import TsdfVolume
 
