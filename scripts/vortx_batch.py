@@ -30,6 +30,12 @@ from typing import Any, Callable, Iterator, Optional, Sequence
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # Blender does not put the script's folder on sys.path
 from _extension_dev import ExtensionLoadError, enable, find_extension, mount_checkout, unmount  # noqa: E402
 
+# The reconstruction flags are generated from this checkout's ReconSettings (plain dataclasses, no
+# torch), the one source the CLI and the Blender properties share.
+sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
+from engine.poses.camera_height import DEFAULT_CAMERA_HEIGHT_M  # noqa: E402
+from engine.recon.settings import ReconSettings, add_setting_arguments, settings_from_arguments  # noqa: E402
+
 EXPORT_SUFFIXES = (".glb", ".gltf", ".ply", ".obj")
 BATCH_REPO = "vortx_checkout"  # repository name when this checkout is mounted: bl_ext.vortx_checkout.vortx
 
@@ -52,25 +58,20 @@ def parse_arguments(args: Sequence[str]) -> argparse.Namespace:
     parser.add_argument("capture", type=Path, help="capture folder or file: photos, video, transforms.json, COLMAP, ScanNet")
     parser.add_argument("--out", type=Path, required=True, help="the .blend file to write")
     parser.add_argument("--export", type=Path, help="also write the mesh: .glb/.gltf (VR), .ply or .obj")
-    parser.add_argument("--voxel-size", type=float, default=0.04, help="finest voxel size in metres (default %(default)s)")
-    parser.add_argument("--views", type=int, default=60, help="photos fused per tile (default %(default)s)")
-    parser.add_argument("--tile-size", type=int, default=96, help="tile width in fine voxels, a multiple of 4 (default %(default)s)")
-    parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="where the network runs (default %(default)s)")
-    parser.add_argument("--weights", help="a .safetensors weights file, or 'random' (tests the pipeline; meaningless mesh); "
-                                          "default: the weights shipped with the extension")
-    parser.add_argument("--seed", type=int, default=0, help="view sampling (and random weights) seed (default %(default)s)")
-    parser.add_argument("--camera-height", type=float, default=1.5,
-                        help="camera height above the floor in metres; scales estimated poses (default %(default)s)")
+    add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI
+    parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
+                        help="camera height above the floor in metres; scales poses that are not metric (default %(default)s)")
     parser.add_argument("--skip-poses", action="store_true", help="never run structure from motion; fail if no frame has a pose")
-    parser.add_argument("--image-size", type=int, help="long side the photos are resized to for the network (default: the scene default, 640)")
-    parser.add_argument("--colour-views", type=int, help="photos used for vertex colours, 0 = grey (default: the scene default)")
-    parser.add_argument("--max-room-size", type=float, nargs=3, metavar=("X", "Y", "Z"),
-                        help="clip the scene to this box in metres around the cameras (default: the scene default)")
     args = parser.parse_args(list(args))
     if args.out.suffix.lower() != ".blend":
         parser.error(f"--out {args.out}: the output must be a .blend file")
     if args.export is not None and args.export.suffix.lower() not in EXPORT_SUFFIXES:
         parser.error(f"--export {args.export}: use a {', '.join(EXPORT_SUFFIXES)} file name")
+    args.settings = settings_from_arguments(args)
+    try:
+        args.settings.validate()
+    except Exception as error:  # engine.errors.VortxError of this checkout's engine
+        parser.error(str(error))
     return args
 
 
@@ -114,34 +115,27 @@ def vortx_extension() -> Iterator[ModuleType]:
             shutil.rmtree(repo_dir, ignore_errors=True)
 
 
-def apply_recon_settings(settings: Any, args: argparse.Namespace) -> None:
+def apply_recon_settings(addon: ModuleType, settings: Any, recon: ReconSettings) -> None:
     """Command-line options -> scene.vortx (the operators read only the scene, as from the panel).
 
     Set just before Reconstruct: choosing the device probes PyTorch for a GPU (seconds), which a
     run that fails at import should not wait for.
     """
-    settings.voxel_size = args.voxel_size
-    settings.view_count = args.views
-    settings.tile_size = args.tile_size
-    settings.seed = args.seed
     settings.result_mode = "REPLACE"
-    if args.weights is None:
+    if recon.weights is None:
         settings.weights_source = "DEFAULT"
-    elif args.weights == "random":
+    elif recon.weights == "random":
         settings.weights_source = "RANDOM"
     else:
         settings.weights_source = "FILE"
-        settings.weights_path = str(Path(args.weights).resolve())
+        settings.weights_path = str(Path(recon.weights).resolve())
     try:
-        settings.device = args.device.upper()
-    except TypeError:  # the enum offers CUDA only when PyTorch sees a GPU
-        raise BatchError("--device cuda: PyTorch sees no CUDA GPU here (or is not installed); use --device cpu") from None
-    if args.image_size is not None:
-        settings.image_size = args.image_size
-    if args.colour_views is not None:
-        settings.colour_views = args.colour_views
-    if args.max_room_size is not None:
-        settings.max_room_size = args.max_room_size
+        addon.vortx_blender.reconstruct.write_scene_settings(settings, recon)
+    except ValueError as error:
+        if recon.device != "cpu":  # the enum offers CUDA only when PyTorch sees a GPU
+            raise BatchError(f"--device {recon.device}: PyTorch sees no CUDA GPU here (or is not installed); "
+                             "use --device cpu") from None
+        raise BatchError(str(error)) from None
 
 
 def run(args: argparse.Namespace, addon: ModuleType) -> None:
@@ -173,7 +167,7 @@ def run(args: argparse.Namespace, addon: ModuleType) -> None:
     say(2, steps, "poses", detail, started)
 
     started = time.perf_counter()
-    apply_recon_settings(settings, args)
+    apply_recon_settings(addon, settings, args.settings)
     run_operator("Reconstruct", bpy.ops.vortx.reconstruct)
     results = addon.vortx_blender.result.result_objects(scene)
     if not results:

@@ -123,7 +123,7 @@ def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
         ("VORTX_PT_model", ["weights_source", "device", "seed"]),
         ("VORTX_PT_tiles", ["show_tiles"]),
         ("VORTX_PT_result", ["min_piece_faces", "min_piece_fraction", "target_faces"]),
-        ("VORTX_PT_advanced", ["image_size", "colour_views", "max_room_size"]),
+        ("VORTX_PT_advanced", ["frustum_depth", "max_room_size", "image_size", "colour_views"]),
     ],
 )
 def test_settings_panels_show_their_properties(blender, empty_scene, panel: str, expected: list[str]) -> None:

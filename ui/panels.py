@@ -12,6 +12,7 @@ import bpy
 
 from ..vortx_blender import jobs
 from ..vortx_blender.jobs import Job
+from ..vortx_blender.properties import recon_property_names
 
 CATEGORY = "VoRTX"
 # Jobs whose progress the Reconstruction panel shows; the Capture panel shows the others.
@@ -98,11 +99,16 @@ def draw_result_settings(layout: Any, settings: Any) -> None:
     row.operator("vortx.export_result", icon="EXPORT")
 
 
+# Reconstruction settings laid out in the Reconstruction and Model panels; every other ReconSettings
+# field offered to Blender appears under Advanced by itself, in declaration order.
+DRAWN_ELSEWHERE = ("voxel_size", "view_count", "tile_size", "device", "seed")
+
+
 def draw_advanced_settings(layout: Any, settings: Any) -> None:
     _settings_layout(layout)
-    layout.prop(settings, "image_size")
-    layout.prop(settings, "colour_views")
-    layout.prop(settings, "max_room_size")
+    for name in recon_property_names():
+        if name not in DRAWN_ELSEWHERE:
+            layout.prop(settings, name)
 
 
 class VORTX_PT_capture(bpy.types.Panel):

@@ -22,20 +22,27 @@ from bpy.props import (
     StringProperty,
 )
 
+# settings.py and camera_height.py are plain dataclasses and constants (no torch): safe to import here.
+from ..engine.poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
+from ..engine.recon.settings import BLENDER, field_default, setting_fields, setting_label, tuple_length, value_type
+
 if TYPE_CHECKING:
+    from dataclasses import Field
+
     from ..engine.capture import Capture
 
-# The three VoRTX levels are 4x, 2x and 1x the fine voxel; the fine one is the user's knob.
-DEFAULT_VOXEL_SIZE = 0.04
-DEFAULT_VIEW_COUNT = 60
-DEFAULT_TILE_SIZE = 96
-DEFAULT_CAMERA_HEIGHT = 1.5
 DEFAULT_MAX_IMAGE_SIDE = 1024  # engine.poses.SfmOptions.max_side: full registration on real photos at 4x less cost
-# engine.recon.ReconSettings defaults, repeated here because properties must not import the engine's
-# torch side; tests/test_blender_reconstruct.py checks the two agree.
-DEFAULT_IMAGE_SIZE = 0  # 0 = the size the chosen weights were trained at
-DEFAULT_COLOUR_VIEWS = 40
-DEFAULT_MAX_ROOM_SIZE = (20.0, 20.0, 6.0)
+
+# How the reconstruction settings look in the panel, beyond what ReconSettings says (default, limits,
+# tooltip, label come from its fields). A field without an entry here still gets a plain property.
+PRESENTATION: dict[str, dict[str, object]] = {
+    "voxel_size": {"soft_min": 0.02, "soft_max": 0.16, "step": 1, "precision": 3, "subtype": "DISTANCE", "unit": "LENGTH"},
+    "views": {"soft_max": 200},
+    "tile_size": {"step": 8},
+    "frustum_depth": {"subtype": "DISTANCE", "unit": "LENGTH"},
+    "max_room_size": {"subtype": "XYZ", "unit": "LENGTH"},
+    "image_long_side": {"subtype": "PIXEL"},
+}
 
 MATCHER_ITEMS = [
     ("AUTO", "Auto", "Sequential matching for video-like captures, exhaustive for small unordered sets"),
@@ -126,35 +133,6 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
     pose_status: StringProperty(name="Poses", description="Where the camera poses come from, or what is missing")
 
     # --- reconstruction settings ---
-    voxel_size: FloatProperty(
-        name="Voxel Size",
-        description="Finest voxel edge; the coarser levels are 2x and 4x this (VoRTX was trained at 4 cm)",
-        default=DEFAULT_VOXEL_SIZE,
-        min=0.005,
-        max=0.5,
-        soft_min=0.02,
-        soft_max=0.16,
-        step=1,
-        precision=3,
-        subtype="DISTANCE",
-        unit="LENGTH",
-    )
-    view_count: IntProperty(
-        name="Views per Tile",
-        description="Number of photos fused into each tile (more: better detail, more memory and time)",
-        default=DEFAULT_VIEW_COUNT,
-        min=1,
-        max=500,
-        soft_max=200,
-    )
-    tile_size: IntProperty(
-        name="Tile Size",
-        description="Edge of a reconstruction tile in fine voxels (smaller: less memory per step)",
-        default=DEFAULT_TILE_SIZE,
-        min=8,
-        max=512,
-        step=8,
-    )
     show_tiles: BoolProperty(
         name="Show Tiles",
         description="Draw the reconstruction tiles and their progress in the viewport",
@@ -168,39 +146,9 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
         subtype="FILE_PATH",
         options=PATH_OPTIONS,
     )
+    # ReconSettings.device; declared here because its items depend on the GPUs PyTorch sees. The other
+    # ReconSettings fields offered to Blender are added below, from the fields (_add_recon_properties).
     device: EnumProperty(name="Device", description="Where the network runs", items=device_items, default=0)
-    seed: IntProperty(
-        name="Seed",
-        description="Seed of the per-tile view sampling (and of random weights); the same seed gives the same mesh",
-        default=0,
-        min=0,
-    )
-    image_size: IntProperty(
-        name="Image Size",
-        description="Photos are resized to this long side before the network sees them; "
-        "0 uses the size the weights were trained at (128 for the default weights, 640 for the official ones)",
-        default=DEFAULT_IMAGE_SIZE,
-        min=0,
-        max=4096,
-        subtype="PIXEL",
-    )
-    colour_views: IntProperty(
-        name="Colour Views",
-        description="Photos (evenly spaced) that colour the mesh vertices; 0 leaves the mesh grey",
-        default=DEFAULT_COLOUR_VIEWS,
-        min=0,
-        max=1000,
-    )
-    max_room_size: FloatVectorProperty(
-        name="Max Room Size",
-        description="The scene is clipped to this box around the cameras, so a stray pose cannot make it city-sized",
-        default=DEFAULT_MAX_ROOM_SIZE,
-        min=0.5,
-        max=1000.0,
-        size=3,
-        subtype="XYZ",
-        unit="LENGTH",
-    )
 
     # --- result (vortx.reconstruct, vortx.clean_result) ---
     result_mode: EnumProperty(name="Result", description="What a new reconstruction does with the previous one", items=RESULT_MODE_ITEMS, default="REPLACE")
@@ -240,12 +188,59 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
     camera_height: FloatProperty(
         name="Camera Height",
         description="Typical height of the camera above the floor; sets the metric scale of estimated poses",
-        default=DEFAULT_CAMERA_HEIGHT,
+        default=DEFAULT_CAMERA_HEIGHT_M,
         min=0.1,
         max=10.0,
         subtype="DISTANCE",
         unit="LENGTH",
     )
+
+
+def blender_name(f: "Field") -> str:
+    """The scene property holding ReconSettings field `f` (its own name unless it says otherwise)."""
+    return f.metadata["blender_name"] or f.name
+
+
+def recon_property_names() -> list[str]:
+    """The scene properties of the ReconSettings fields offered to Blender, in declaration order."""
+    return [blender_name(f) for f in setting_fields(BLENDER)]
+
+
+def recon_property(f: "Field") -> object:
+    """The bpy property for ReconSettings field `f`: default, limits, tooltip and label from the field."""
+    meta, kind, default = f.metadata, value_type(f), field_default(f)
+    options: dict[str, object] = {"name": setting_label(f), "description": meta["help"][:1].upper() + meta["help"][1:]}
+    options.update(PRESENTATION.get(f.name, {}))
+    limits = {key: meta[key] for key in ("min", "max") if meta[key] is not None}
+    if meta["choices"] is not None:
+        items = [(choice.upper(), choice.capitalize(), "") for choice in meta["choices"]]
+        return EnumProperty(items=items, default=str(default).upper(), **options)
+    if kind is bool:
+        return BoolProperty(default=bool(default), **options)
+    if kind is tuple:
+        return FloatVectorProperty(default=tuple(default), size=tuple_length(f), **limits, **options)
+    if default is None:  # Optional: `unset` stands for None ("automatic") and is allowed below the minimum
+        if meta["unset"] is None:
+            raise TypeError(f"ReconSettings.{f.name} defaults to None but says no `unset` value for Blender")
+        default = meta["unset"]
+        limits["min"] = min(limits.get("min", default), default)
+    if kind is float:
+        return FloatProperty(default=float(default), **limits, **options)
+    if kind is int:
+        return IntProperty(default=int(default), **limits, **options)
+    raise TypeError(f"ReconSettings.{f.name}: no Blender property for {kind.__name__} settings; give it choices")
+
+
+def _add_recon_properties(cls: type) -> None:
+    """One annotation per ReconSettings field offered to Blender, unless the class declares its own
+    (the device enum, whose items depend on the GPUs PyTorch sees)."""
+    annotations = cls.__dict__["__annotations__"]  # the class body declares annotations, so it has its own dict
+    for f in setting_fields(BLENDER):
+        if blender_name(f) not in annotations:
+            annotations[blender_name(f)] = recon_property(f)
+
+
+_add_recon_properties(VortxSceneSettings)
 
 
 def capture_summary(capture: "Capture", path: str, pose_status: str | None = None) -> dict[str, object]:

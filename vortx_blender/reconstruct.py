@@ -20,13 +20,16 @@ from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.mesh_io import Mesh
 from ..engine.meshops import PieceStats, remove_small_pieces
 from ..engine.poses.prepare import SFM_NEVER, prepare_capture
-from ..engine.recon.settings import ReconSettings
+from ..engine.recon.settings import BLENDER, ReconSettings, setting_fields, value_type
 from .cameras import posed_capture_from_scene
 from .capture import apply_capture, scene_camera_height
 from .jobs import JobFunction
+from .properties import blender_name
 from .result import Provenance
 
 if TYPE_CHECKING:
+    from dataclasses import Field
+
     import bpy
 
     from ..engine.recon import ReconResult, Tile
@@ -101,23 +104,49 @@ def weights_from_scene(settings: Any) -> Optional[str]:
 def recon_settings_from_scene(settings: Any, with_weights: bool = True) -> ReconSettings:
     """The engine settings for scene.vortx, validated (raises VortxError naming the setting).
 
-    with_weights=False leaves `weights` at its default and skips checking the weights choice, for
-    work that runs no network (planning the tiles).
+    Every ReconSettings field offered to Blender is read from its property by its type (no field is
+    mapped by hand); the weights come from the Weights source / file choice. with_weights=False
+    leaves `weights` at its default and skips checking the weights choice, for work that runs no
+    network (planning the tiles).
     """
-    recon = ReconSettings(
-        weights=weights_from_scene(settings) if with_weights else None,
-        voxel_size=round(float(settings.voxel_size), 6),  # float32 property: 0.04 reads as 0.03999999910593033
-        views=int(settings.view_count),
-        tile_size=int(settings.tile_size),
-        device="cuda" if settings.device == "CUDA" else "cpu",
-        seed=int(settings.seed),
-        image_long_side=int(settings.image_size) or None,  # 0: the weights' own training size
-        colour=int(settings.colour_views) > 0,
-        colour_views=max(int(settings.colour_views), 1),
-        max_room_size=tuple(round(float(v), 6) for v in settings.max_room_size),
-    )
+    values = {f.name: scene_value(f, getattr(settings, blender_name(f))) for f in setting_fields(BLENDER)}
+    recon = ReconSettings(weights=weights_from_scene(settings) if with_weights else None, **values)
     recon.validate()
     return recon
+
+
+def scene_value(f: "Field", value: Any) -> Any:
+    """A scene property's value as ReconSettings field `f` holds it."""
+    kind = value_type(f)
+    if kind is str:  # enum identifiers are the choices upper-cased ("CUDA" -> "cuda")
+        return str(value).lower()
+    if kind is bool:
+        return bool(value)
+    if kind is tuple:  # float32 properties: 0.04 reads as 0.03999999910593033
+        return tuple(round(float(v), 6) for v in value)
+    if kind is float:
+        return round(float(value), 6)
+    value = int(value)
+    return None if f.metadata["unset"] is not None and value == f.metadata["unset"] else value
+
+
+def write_scene_settings(settings: Any, recon: ReconSettings) -> None:
+    """ReconSettings -> scene.vortx for every field offered to Blender (the batch script's flags).
+
+    Raises ValueError naming the field when a value cannot be set (e.g. device "cuda" where PyTorch
+    sees no GPU: the enum does not offer it).
+    """
+    for f in setting_fields(BLENDER):
+        value = getattr(recon, f.name)
+        kind = value_type(f)
+        if value is None:
+            value = f.metadata["unset"]
+        elif kind is str:
+            value = value.upper()
+        try:
+            setattr(settings, blender_name(f), value)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"{f.name} = {getattr(recon, f.name)!r}: {error}") from None
 
 
 def scene_capture(scene: "bpy.types.Scene") -> Capture:

@@ -18,33 +18,15 @@ from ..errors import VortxError
 from ..jobs import TqdmProgress
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import SFM_IF_UNPOSED, PreparedCapture, prepare_capture
-from .settings import ReconSettings
+from .settings import ReconSettings, add_setting_arguments, settings_from_arguments
 
 MESH_SUFFIXES = (".ply", ".obj")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    defaults = ReconSettings()
     parser.add_argument("capture", type=Path, help="capture folder (any layout `python -m engine info` reads), with poses")
     parser.add_argument("--out", type=Path, required=True, help="output mesh, .ply or .obj (a .json sidecar is written beside it)")
-    parser.add_argument("--weights", default=None,
-                        help="weights .safetensors file, or 'random' (seeded random network: tests the pipeline, "
-                             "meaningless mesh); default: the weights shipped with the extension")
-    parser.add_argument("--voxel-size", type=float, default=defaults.voxel_size, help="finest voxel size in metres (default %(default)s)")
-    parser.add_argument("--views", type=int, default=defaults.views, help="keyframes per tile (default %(default)s)")
-    parser.add_argument("--tile-size", type=int, default=defaults.tile_size,
-                        help="tile width in fine voxels, a multiple of 4 (default %(default)s)")
-    parser.add_argument("--device", default=defaults.device, help="cpu or cuda (default %(default)s)")
-    parser.add_argument("--seed", type=int, default=defaults.seed, help="view sampling / random weights seed (default %(default)s)")
-    parser.add_argument("--image-size", type=int, default=defaults.image_long_side,
-                        help="long side in pixels the photos are resized to for the network "
-                             "(default: the size the weights were trained at)")
-    parser.add_argument("--colour-views", type=int, default=defaults.colour_views,
-                        help="keyframes used for vertex colours, 0 = grey mesh (default %(default)s)")
-    parser.add_argument("--max-room-size", type=float, nargs=3, metavar=("X", "Y", "Z"), default=list(defaults.max_room_size),
-                        help="clip the scene bounds to this size in metres around the median camera (default %(default)s)")
-    parser.add_argument("--frustum-depth", type=float, default=defaults.frustum_depth,
-                        help="scene bounds = camera frusta cut at this depth in metres (default %(default)s)")
+    add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="metres above the floor, for the scale of captures whose poses are not metric "
                              "(default %(default)s)")
@@ -52,19 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def settings_from_args(args: argparse.Namespace) -> ReconSettings:
-    return ReconSettings(
-        weights=args.weights,
-        voxel_size=args.voxel_size,
-        views=args.views,
-        tile_size=args.tile_size,
-        device=args.device,
-        seed=args.seed,
-        image_long_side=args.image_size,
-        colour=args.colour_views > 0,
-        colour_views=max(args.colour_views, 1),
-        max_room_size=tuple(args.max_room_size),
-        frustum_depth=args.frustum_depth,
-    )
+    return settings_from_arguments(args)
 
 
 def write_mesh(path: Path, mesh: Any) -> None:

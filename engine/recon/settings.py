@@ -7,7 +7,9 @@ knobs (chunk sizes, colour views, room clipping) bound memory and time on a lapt
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import argparse
+import typing
+from dataclasses import MISSING, Field, asdict, dataclass, field, fields
 from typing import Any, Optional
 
 from ..errors import VortxError
@@ -27,31 +29,85 @@ def level_label(voxel_size: float) -> str:
     return f"{round(voxel_size * 100, 2):g} cm"
 
 
+# Where a setting is offered to the user. Every field says so explicitly (tests check it), so a new
+# field cannot be forgotten by one entry point: `python -m engine reconstruct` and
+# scripts/vortx_batch.py generate a flag for each CLI field, Blender a scene property for each
+# BLENDER field (vortx_blender/properties.py).
+CLI = "cli"
+BLENDER = "blender"
+ENGINE_ONLY: tuple[str, ...] = ()  # tuning knobs of the engine itself; changed in code, not by users
+
+
+def setting(default: Any, help: str, expose: tuple[str, ...], *, min: Optional[float] = None,
+            max: Optional[float] = None, choices: Optional[tuple[str, ...]] = None, flag: Optional[str] = None,
+            blender_name: Optional[str] = None, label: Optional[str] = None, unset: Optional[int] = None,
+            default_text: Optional[str] = None, metavar: Optional[tuple[str, ...]] = None) -> Any:
+    """A ReconSettings field with what every entry point needs to offer it.
+
+    help: one sentence for the CLI help and the Blender tooltip. expose: (CLI, BLENDER), a subset, or
+    ENGINE_ONLY. min / max: inclusive limits (checked by `validate`, Blender's property limits).
+    choices: the allowed strings of a text setting (CLI choices, a Blender enum with upper-case ids).
+    flag: the CLI flag when not --<name-with-dashes>. blender_name / label: the scene property's
+    identifier (default: the field name, kept stable for saved .blend files) and its label.
+    unset: for an Optional[int] whose None means "automatic", the Blender value that stands for
+    None (e.g. 0). default_text: the CLI help's default when the default is not a plain value.
+    """
+    metadata = {"help": help, "expose": tuple(expose), "min": min, "max": max, "choices": choices, "flag": flag,
+                "blender_name": blender_name, "label": label, "unset": unset, "default_text": default_text,
+                "metavar": metavar}
+    if isinstance(default, (list, tuple)):
+        return field(default_factory=lambda: tuple(default), metadata=metadata)
+    return field(default=default, metadata=metadata)
+
+
 @dataclass
 class ReconSettings:
-    # "random" = randomly initialised network (seeded), None = the default weights shipped with the
-    # extension, anything else = a path to a .safetensors file (with its JSON config beside it).
-    weights: Optional[str] = None
-    voxel_size: float = 0.04  # finest level, metres
-    views: int = 60  # keyframes per tile (N)
-    tile_size: int = 96  # tile width and depth in fine voxels
-    tile_height: int = 48  # tile height in fine voxels (the training crop's height)
-    device: str = "cpu"  # "cpu" or "cuda"
-    seed: int = 0  # view sampling and random weights
-    keyframe_translation: float = 0.1  # metres since the last kept keyframe
-    keyframe_angle_deg: float = 15.0  # optical-axis angle since the last kept keyframe
-    frustum_depth: float = 4.0  # scene bounds = camera frusta cut at this depth (official: 4 m)
+    weights: Optional[str] = setting(
+        None, "weights .safetensors file, or 'random' (seeded random network: tests the pipeline, meaningless mesh)",
+        (CLI,), default_text="the weights shipped with the extension")  # Blender: Weights source + file (reconstruct.py)
+    voxel_size: float = setting(
+        0.04, "finest voxel edge in metres; the coarser levels are 2x and 4x this (VoRTX was trained at 4 cm)",
+        (CLI, BLENDER), min=0.005, max=0.5, label="Voxel Size")
+    views: int = setting(
+        60, "keyframes fused into each tile (more: better detail, more memory and time)",
+        (CLI, BLENDER), min=1, max=500, blender_name="view_count", label="Views per Tile")
+    tile_size: int = setting(
+        96, f"tile width and depth in fine voxels, a multiple of {COARSE_FACTOR} (smaller: less memory per step)",
+        (CLI, BLENDER), min=COARSE_FACTOR, max=512, label="Tile Size")
+    tile_height: int = setting(48, "tile height in fine voxels (the training crop's height)", ENGINE_ONLY)
+    device: str = setting("cpu", "where the network runs: cpu, cuda or cuda:<index>", (CLI, BLENDER))
+    seed: int = setting(
+        0, "seed of the per-tile view sampling (and of random weights); the same seed gives the same mesh",
+        (CLI, BLENDER), min=0)
+    keyframe_translation: float = setting(0.1, "metres since the last kept keyframe", ENGINE_ONLY, min=0.0)
+    keyframe_angle_deg: float = setting(15.0, "optical-axis angle since the last kept keyframe", ENGINE_ONLY, min=0.0)
+    frustum_depth: float = setting(
+        4.0, "scene bounds = the camera frusta cut at this depth in metres (official: 4 m)",
+        (CLI, BLENDER), min=0.1, max=100.0, label="Frustum Depth")
     # Bounds larger than this (metres, x/y/z) are clipped around the median camera centre, so one
     # bad pose or a camera looking down a corridor cannot blow the voxel grid up to city size.
-    max_room_size: tuple[float, float, float] = (20.0, 20.0, 6.0)
-    # Long side in pixels the photos are resized to for the 2D CNN; None = the size the weights were
-    # trained at (VortxConfig.image_long_side: 640 for the official model).
-    image_long_side: Optional[int] = None
-    feature_chunk: int = 4  # images per 2D CNN call (measured fastest on CPU, platform-notes section 4)
-    fusion_chunk: int = 2048  # voxels per fusion call: fusion memory is O(chunk x views^2)
-    fp16_features: bool = True  # cache 2D features as fp16 on the CPU (halves the cache; official does this)
-    colour: bool = True  # colour the vertices from the photos
-    colour_views: int = 40  # keyframes (evenly spaced) used for vertex colours
+    max_room_size: tuple[float, float, float] = setting(
+        (20.0, 20.0, 6.0), "clip the scene to this box in metres around the median camera, so a stray pose "
+        "cannot make it city-sized", (CLI, BLENDER), min=0.5, max=1000.0, metavar=("X", "Y", "Z"))
+    # None = the size the weights were trained at (VortxConfig.image_long_side: 640 for the official model).
+    image_long_side: Optional[int] = setting(
+        None, "long side in pixels the photos are resized to for the network", (CLI, BLENDER), min=32, max=4096,
+        flag="--image-size", blender_name="image_size", label="Image Size", unset=0,
+        default_text="the size the weights were trained at")
+    feature_chunk: int = setting(
+        4, "images per 2D CNN call (measured fastest on CPU, platform-notes section 4)", ENGINE_ONLY, min=1)
+    fusion_chunk: int = setting(
+        2048, "voxels per fusion call: fusion memory is O(chunk x views^2)", ENGINE_ONLY, min=1)
+    fp16_features: bool = setting(
+        True, "cache 2D features as fp16 on the CPU (halves the cache; official does this)", ENGINE_ONLY)
+    colour_views: int = setting(
+        40, "keyframes (evenly spaced) that colour the mesh vertices; 0 leaves the mesh grey",
+        (CLI, BLENDER), min=0, max=1000, label="Colour Views")
+
+    @property
+    def colour(self) -> bool:
+        """Colour the vertices from the photos (colour_views 0 = a grey mesh)."""
+        return self.colour_views > 0
 
     @property
     def level_voxel_sizes(self) -> tuple[float, float, float]:
@@ -78,8 +134,84 @@ class ReconSettings:
             raise VortxError("keyframe thresholds cannot be negative")
         if min(self.max_room_size) <= 0 or self.frustum_depth <= 0:
             raise VortxError("maximum room size and frustum depth must be positive")
+        for f in fields(self):  # the limits and choices every entry point offers
+            _check_limits(f, getattr(self, f.name))
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
         data["max_room_size"] = list(self.max_room_size)
         return data
+
+
+# --- the fields as entry points see them ------------------------------------------------------------
+
+def setting_fields(expose: Optional[str] = None) -> list[Field]:
+    """ReconSettings' fields in declaration order; only those offered to `expose` (CLI / BLENDER) if given."""
+    return [f for f in fields(ReconSettings) if expose is None or expose in f.metadata["expose"]]
+
+
+def value_type(f: Field) -> type:
+    """The field's value type with Optional removed: float, int, bool, str or tuple."""
+    hint = typing.get_type_hints(ReconSettings)[f.name]
+    args = [a for a in typing.get_args(hint) if a is not type(None)]
+    if typing.get_origin(hint) is typing.Union:
+        hint = args[0]
+    return typing.get_origin(hint) or hint
+
+
+def tuple_length(f: Field) -> int:
+    return len(typing.get_args(typing.get_type_hints(ReconSettings)[f.name]))
+
+
+def field_default(f: Field) -> Any:
+    return f.default_factory() if f.default_factory is not MISSING else f.default
+
+
+def setting_label(f: Field) -> str:
+    return f.metadata["label"] or f.name.replace("_", " ").capitalize()
+
+
+def _check_limits(f: Field, value: Any) -> None:
+    meta = f.metadata
+    if value is None:
+        return
+    if meta["choices"] is not None and value not in meta["choices"]:
+        raise VortxError(f"{f.name.replace('_', ' ')} must be one of {', '.join(meta['choices'])}, got {value!r}")
+    values = value if isinstance(value, tuple) else (value,)
+    for v in values:
+        if meta["min"] is not None and v < meta["min"] or meta["max"] is not None and v > meta["max"]:
+            low = "" if meta["min"] is None else f"at least {meta['min']:g}"
+            high = "" if meta["max"] is None else f"at most {meta['max']:g}"
+            raise VortxError(f"{f.name.replace('_', ' ')} must be {' and '.join(t for t in (low, high) if t)}, got {value}")
+
+
+def cli_flag(f: Field) -> str:
+    return f.metadata["flag"] or "--" + f.name.replace("_", "-")
+
+
+def add_setting_arguments(parser: argparse.ArgumentParser) -> None:
+    """One flag per CLI field of ReconSettings, with its help, default, type, choices and nargs."""
+    for f in setting_fields(CLI):
+        meta, kind, default = f.metadata, value_type(f), field_default(f)
+        shown = meta["default_text"] or "%(default)s"
+        options: dict[str, Any] = {"dest": f.name, "default": default, "help": f"{meta['help']} (default: {shown})"}
+        if kind is bool:
+            options["action"] = argparse.BooleanOptionalAction
+        elif kind is tuple:
+            options.update(type=float, nargs=tuple_length(f), metavar=meta["metavar"])
+            options["default"] = list(default)
+        else:
+            options.update(type=kind, metavar=cli_flag(f)[2:].upper().replace("-", "_"))
+            if meta["choices"] is not None:
+                options["choices"] = meta["choices"]
+        parser.add_argument(cli_flag(f), **options)
+
+
+def settings_from_arguments(args: argparse.Namespace, **overrides: Any) -> ReconSettings:
+    """ReconSettings from the flags `add_setting_arguments` made (engine-only fields keep their defaults)."""
+    values = {f.name: getattr(args, f.name) for f in setting_fields(CLI)}
+    for f in setting_fields(CLI):
+        if value_type(f) is tuple:
+            values[f.name] = tuple(values[f.name])
+    values.update(overrides)
+    return ReconSettings(**values)
