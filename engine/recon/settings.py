@@ -201,9 +201,11 @@ def add_setting_arguments(parser: argparse.ArgumentParser) -> None:
             options.update(type=float, nargs=tuple_length(f), metavar=meta["metavar"])
             options["default"] = list(default)
         else:
-            options.update(type=kind, metavar=cli_flag(f)[2:].upper().replace("-", "_"))
+            options["type"] = kind
             if meta["choices"] is not None:
-                options["choices"] = meta["choices"]
+                options["choices"] = meta["choices"]  # argparse shows them as {a,b}
+            else:
+                options["metavar"] = cli_flag(f)[2:].upper().replace("-", "_")
         parser.add_argument(cli_flag(f), **options)
 
 
