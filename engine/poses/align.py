@@ -80,6 +80,28 @@ def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool = True) -> 
     return Similarity(rotation, translation, scale)
 
 
+def fit_pose_similarity(source_c2w: np.ndarray, target_c2w: np.ndarray) -> Similarity:
+    """Similarity taking camera trajectory `source_c2w` (N, 4, 4) onto `target_c2w` (N, 4, 4), N >= 1.
+
+    Unlike `umeyama` on the camera centres alone, the rotation comes from the cameras'
+    orientations (the chordal mean of R_target R_source^T), so it is well defined for a straight
+    or short trajectory, where centres leave the roll about the line free. Scale and translation
+    then follow by least squares on the centres (scale 1 for a single camera).
+    """
+    src = np.asarray(source_c2w, dtype=np.float64)
+    dst = np.asarray(target_c2w, dtype=np.float64)
+    if src.shape != dst.shape or src.ndim != 3 or src.shape[1:] != (4, 4) or len(src) == 0:
+        raise ValueError(f"fit_pose_similarity needs two (N, 4, 4) arrays, got {src.shape} and {dst.shape}")
+    u, _, vt = np.linalg.svd(np.einsum("nij,nkj->ik", dst[:, :3, :3], src[:, :3, :3]))
+    rotation = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+    c_src, c_dst = src[:, :3, 3], dst[:, :3, 3]
+    mu_src, mu_dst = c_src.mean(0), c_dst.mean(0)
+    rotated = (c_src - mu_src) @ rotation.T
+    variance = float((rotated**2).sum())
+    scale = float((rotated * (c_dst - mu_dst)).sum() / variance) if variance > 1e-18 else 1.0
+    return Similarity(rotation, mu_dst - scale * rotation @ mu_src, scale)
+
+
 def rotation_angle_deg(rotation: np.ndarray) -> float:
     """Angle of a (3, 3) rotation matrix in degrees.
 

@@ -29,6 +29,7 @@ STAGE_LABELS = {
     "extract": "poses: SIFT features",
     "match": "poses: matching",
     "map": "poses: mapping",
+    "adjust": "poses: triangulate and bundle-adjust",
 }
 
 _EXTRACTED = re.compile(r"Processed file \[(\d+)/(\d+)\]")
@@ -104,12 +105,14 @@ def run_worker(
     cancel: Optional[CancelToken] = None,
     env: Optional[dict[str, str]] = None,
     log_path: Optional[Path] = None,
+    task: str = "structure from motion",
 ) -> None:
     """Run `command` to completion, reporting progress; raise Cancelled or PoseError.
 
     On cancel the process is killed (COLMAP has no safe stop point we could wait for) and
     `Cancelled` is raised. A non-zero exit raises PoseError with the worker's own error message
     when it sent one, else the last lines of its log. `log_path`, when given, receives the whole log.
+    `task` names the work in those messages ("structure from motion", "pose refinement").
     """
     tail: deque[str] = deque(maxlen=25)
     worker_error: Optional[str] = None
@@ -171,9 +174,9 @@ def run_worker(
 
     if returncode != 0:
         if worker_error is not None:
-            raise PoseError(f"structure from motion failed: {worker_error}")
+            raise PoseError(f"{task} failed: {worker_error}")
         last = "\n".join(tail) or "(no output)"
         raise PoseError(
-            f"structure from motion crashed: the COLMAP process {_describe_exit(returncode)}. "
+            f"{task} crashed: the COLMAP process {_describe_exit(returncode)}. "
             f"Last log lines:\n{last}"
         )

@@ -25,6 +25,18 @@ JOB.json (written by `sfm.py`):
   min_model_size     smallest sub-model COLMAP keeps
 
 Result (work_dir/result.json and work_dir/points.npz): see `_write_result`.
+
+A job with `"kind": "refine"` (written by `refine.py`) refines given poses instead of estimating
+new ones: SIFT features, matches between the listed image pairs, triangulation with the given
+poses and intrinsics (fixed), bundle adjustment, repeated (see `run_refine`). Its extra fields:
+  K_per_image        [[3x3], ...] in pixels of the source images, one per image (PINHOLE, held fixed)
+  cam_from_world     [[3x4], ...] the given world-to-camera poses, OpenCV axes, one per image
+  pairs              [[i, j], ...] image indices to match
+  rounds             most triangulate + bundle adjustment rounds
+  loose_angle_deg    the first triangulation accepts rays this far off (the given poses' error)
+Its result: work_dir/result.json {"images": [{"name", "cam_from_world" 3x4, "num_points3D"}],
+"mean_reprojection_error", "num_points3D", "rounds", "round_changes", "database", "timings"} and
+work_dir/points.npz as for SfM.
 """
 
 from __future__ import annotations
@@ -246,13 +258,207 @@ def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: fl
     (work / "result.json").write_text(json.dumps(result))
 
 
+def _extract(job: dict, db_path: Path, image_dir: Path, names: list[str], reader) -> None:
+    import pycolmap
+
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.num_threads = int(job["num_threads"])
+    extraction.sift.max_num_features = int(job["max_num_features"])
+    say("stage", "extract", len(names))
+    pycolmap.extract_features(
+        db_path,
+        image_dir,
+        image_names=names,
+        camera_mode=reader[0],
+        reader_options=reader[1],
+        extraction_options=extraction,
+        device=pycolmap.Device.cpu,
+    )
+    say("progress", "extract", len(names), len(names))
+
+
+def _pinhole_params(K: list, sx: float, sy: float) -> list[float]:
+    """(fx, fy, cx, cy) of a source-pixel K in the downscaled pixels (corner at 0: a plain multiply)."""
+    return [K[0][0] * sx, K[1][1] * sy, K[0][2] * sx, K[1][2] * sy]
+
+
+def run_refine(job: dict) -> None:
+    """Refine given poses: triangulate with them, bundle-adjust, retriangulate, until they settle.
+
+    The first triangulation accepts rays `loose_angle_deg` off (the given poses may be off by that
+    much); later ones use COLMAP's defaults on the adjusted poses, so wrong early tracks do not
+    survive. Bundle adjustment holds the intrinsics fixed, uses a Cauchy loss (1 px) against the
+    remaining bad matches and fixes the gauge by two cameras (without it the free 7 degrees of
+    freedom make the normal equations singular); the caller brings the result back to the given
+    world with a similarity fit, so the gauge choice does not matter.
+    """
+    import pycolmap
+
+    pycolmap.logging.minloglevel = 0
+    pycolmap.logging.logtostderr = True
+    work = Path(job["work_dir"])
+    image_dir = work / "images"
+    db_path = work / "database.db"
+    if db_path.exists():
+        db_path.unlink()
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    sizes, sx, sy = downscale_images(job, image_dir)
+    timings["prepare"] = time.perf_counter() - start
+    names = [item["name"] for item in job["images"]]
+    params = [_pinhole_params(K, sx, sy) for K in job["K_per_image"]]
+    shared = all(np.allclose(p, params[0]) for p in params)
+
+    start = time.perf_counter()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = "PINHOLE"
+    reader.camera_params = ",".join(repr(float(v)) for v in params[0])
+    _extract(job, db_path, image_dir, names, (pycolmap.CameraMode.SINGLE if shared else pycolmap.CameraMode.PER_IMAGE, reader))
+    timings["extract"] = time.perf_counter() - start
+
+    start = time.perf_counter()
+    pairs_path = work / "pairs.txt"
+    pairs_path.write_text("".join(f"{names[i]} {names[j]}\n" for i, j in job["pairs"]))
+    say("stage", "match", len(job["pairs"]))
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = int(job["num_threads"])
+    pairing = pycolmap.ImportedPairingOptions()
+    pairing.match_list_path = pairs_path
+    pycolmap.match_image_pairs(db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
+    timings["match"] = time.perf_counter() - start
+    say("progress", "match", len(job["pairs"]), len(job["pairs"]))
+    stats = database_stats(db_path)
+
+    start = time.perf_counter()
+    index_of = {name: i for i, name in enumerate(names)}
+    reconstruction = pycolmap.Reconstruction()
+    with pycolmap.Database.open(str(db_path)) as db:
+        db_images = db.read_all_images()
+        image_of_camera = {im.camera_id: index_of[im.name] for im in db_images}
+        for camera in db.read_all_cameras():
+            # One camera per image when the intrinsics differ: each gets its own.
+            camera.params = params[image_of_camera[camera.camera_id]]
+            reconstruction.add_camera_with_trivial_rig(camera)
+        for db_image in db_images:
+            keypoints = np.asarray(db.read_keypoints(db_image.image_id))[:, :2].astype(np.float64)
+            image = pycolmap.Image(name=db_image.name, keypoints=keypoints, camera_id=db_image.camera_id,
+                                   image_id=db_image.image_id)
+            pose = np.asarray(job["cam_from_world"][index_of[db_image.name]], dtype=np.float64)
+            reconstruction.add_image_with_trivial_frame(
+                image, pycolmap.Rigid3d(pycolmap.Rotation3d(pose[:, :3]), pose[:, 3]))
+
+    focal = float(np.median([0.5 * (p[0] + p[1]) for p in params]))
+    rounds = int(job["rounds"])
+    round_changes: list[float] = []
+    say("stage", "adjust", rounds)
+    done_rounds = 0
+    for round_index in range(rounds):
+        loose = round_index == 0
+        reconstruction = _triangulate(reconstruction, db_path, image_dir, work / f"triangulated-{round_index}",
+                                      float(job["loose_angle_deg"]) if loose else None, focal)
+        before = _rotations(reconstruction)
+        _bundle_adjust(reconstruction)
+        change = _largest_change_deg(before, _rotations(reconstruction))
+        round_changes.append(change)
+        done_rounds = round_index + 1
+        say("progress", "adjust", done_rounds, rounds)
+        # Settled: the last adjustment turned no camera by more than a hundredth of a degree.
+        if not loose and change < 0.01:
+            break
+    # Points that agree with the final poses (the caller writes them out with the refined capture).
+    reconstruction = _triangulate(reconstruction, db_path, image_dir, work / "triangulated-final", None, focal)
+    timings["adjust"] = time.perf_counter() - start
+    _write_refined(work, reconstruction, stats, timings, done_rounds, round_changes)
+
+
+def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loose_angle_deg, focal: float):
+    import pycolmap
+
+    options = pycolmap.IncrementalPipelineOptions()
+    if loose_angle_deg is not None:
+        triangulation = options.triangulation
+        triangulation.create_max_angle_error = max(2.0, loose_angle_deg)
+        triangulation.continue_max_angle_error = max(2.0, loose_angle_deg)
+        pixels = max(4.0, focal * float(np.tan(np.radians(loose_angle_deg))))
+        triangulation.merge_max_reproj_error = pixels
+        triangulation.complete_max_reproj_error = pixels
+    out.mkdir(parents=True, exist_ok=True)
+    return pycolmap.triangulate_points(reconstruction, db_path, image_dir, out, clear_points=True, options=options)
+
+
+def _bundle_adjust(reconstruction) -> None:
+    import pycolmap
+
+    options = pycolmap.BundleAdjustmentOptions()
+    options.refine_focal_length = False
+    options.refine_principal_point = False
+    options.refine_extra_params = False
+    options.print_summary = False
+    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
+    options.ceres.loss_function_scale = 1.0
+    options.ceres.solver_options.max_num_iterations = 300
+    config = pycolmap.BundleAdjustmentConfig()
+    for image_id in reconstruction.reg_image_ids():
+        if reconstruction.images[image_id].num_points3D > 0:
+            config.add_image(image_id)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
+    pycolmap.create_default_bundle_adjuster(options, config, reconstruction).solve()
+
+
+def _rotations(reconstruction) -> dict[str, np.ndarray]:
+    """{name: (3, 3) world-to-camera rotation} of the posed images, to measure how much a round turned them."""
+    return {reconstruction.images[i].name: np.asarray(reconstruction.images[i].cam_from_world().rotation.matrix())
+            for i in reconstruction.reg_image_ids()}
+
+
+def _largest_change_deg(before: dict[str, np.ndarray], after: dict[str, np.ndarray]) -> float:
+    """Largest rotation (degrees) between two rounds' cameras, relative to the first camera's change.
+
+    Relative, because the gauge (the two fixed cameras) need not stay put between rounds.
+    """
+    names = sorted(before)
+    ref = after[names[0]].T @ before[names[0]]
+    worst = 0.0
+    for name in names:
+        delta = after[name] @ ref @ before[name].T
+        cos = np.clip(0.5 * (np.trace(delta) - 1.0), -1.0, 1.0)
+        worst = max(worst, float(np.degrees(np.arccos(cos))))
+    return worst
+
+
+def _write_refined(work: Path, reconstruction, stats: dict, timings: dict, rounds: int, round_changes: list[float]) -> None:
+    images = []
+    for image_id in sorted(reconstruction.reg_image_ids()):
+        image = reconstruction.images[image_id]
+        images.append({"name": image.name, "cam_from_world": np.asarray(image.cam_from_world().matrix()).tolist(),
+                       "num_points3D": int(image.num_points3D)})
+    points = list(reconstruction.points3D.values())
+    xyz = np.array([p.xyz for p in points], dtype=np.float64).reshape(-1, 3)
+    rgb = np.array([p.color for p in points], dtype=np.uint8).reshape(-1, 3)
+    error = np.array([p.error for p in points], dtype=np.float64)
+    np.savez(work / "points.npz", xyz=xyz, rgb=rgb, error=error)
+    result = {
+        "images": images,
+        "mean_reprojection_error": float(reconstruction.compute_mean_reprojection_error()) if points else None,
+        "num_points3D": len(points),
+        "rounds": rounds,
+        "round_changes": round_changes,
+        "database": stats,
+        "timings": timings,
+    }
+    (work / "result.json").write_text(json.dumps(result))
+
+
 def main(argv: list[str]) -> int:
     if len(argv) != 2:
         print("usage: sfm_worker.py JOB.json", file=sys.stderr)
         return 2
     try:
         job = json.loads(Path(argv[1]).read_text())
-        run_sfm(job)
+        if job.get("kind", "sfm") == "refine":
+            run_refine(job)
+        else:
+            run_sfm(job)
     except Exception as error:  # reported to the parent, which turns it into a PoseError
         traceback.print_exc()
         say("error", " ".join(str(error).split()) or type(error).__name__)
