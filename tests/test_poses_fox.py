@@ -47,3 +47,15 @@ def test_fox_photos_register_with_accurate_rotations():
     # K back at full size (1080 x 1920): the truth's focal length is 1375 px.
     assert result.K[0, 0] == pytest.approx(meta["fl_x"], rel=0.03)
     assert result.K[0, 2] == pytest.approx(540.0) and result.K[1, 2] == pytest.approx(960.0)
+
+    # The automatic scale says where it came from. The fox sits on a table the cameras circle, with
+    # little floor in view: either a floor plane is reported with its numbers, or the report says
+    # plainly that no floor was found (and warns that the size is a guess).
+    alignment = result.alignment
+    assert alignment is not None and f"world: {alignment.description}" in result.report
+    if alignment.floor_method == "plane":
+        assert alignment.description.startswith("floor plane from") and "RANSAC inliers" in alignment.description
+        assert alignment.scale_source == "camera height" and "scaled x" in alignment.description
+    else:
+        assert alignment.description.startswith("no floor")
+        assert any(w.startswith("no floor") for w in result.warnings)

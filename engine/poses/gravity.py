@@ -254,8 +254,9 @@ def align_gravity_and_scale(
         description = f"{floor_text} -> scaled x{scale:.3g} to {camera_height:g} m"
         if floor_method == "lowest points":
             warnings.append(
-                f"{floor_text}: the scale from the {camera_height:g} m camera height assumes the lowest points lie on "
-                "the floor, so the size may be off; check it, or set the scale from a known distance"
+                f"no floor plane found in the sparse points ({search.reason}): the scale from the {camera_height:g} m "
+                "camera height assumes the lowest points lie on the floor, so the size may be off; check it, or set "
+                "the scale from a known distance"
             )
     else:
         scale = 1.0
