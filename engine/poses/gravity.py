@@ -67,7 +67,9 @@ class Alignment:
     scale_source: str  # "camera height", "known distance", "metric capture", "unknown"
     description: str  # one line for reports: the scale, its source and the numbers behind it
     warnings: list[str] = field(default_factory=list)
-    floor: Optional[FloorPlane] = None  # the floor plane found (in the gravity-aligned SfM frame), if any
+    # The floor plane found, if any, in SfM units in the final Z-up orientation (before the scale and
+    # the shift that puts it at z = 0).
+    floor: Optional[FloorPlane] = None
     # How the floor was placed: "plane" (found in the points), "lowest points" (no plane: the
     # lowest points stand in), "assumed" (no points below the cameras: camera_height below them),
     # "" (metric capture, not searched).

@@ -157,7 +157,6 @@ def test_known_distance_between_two_points_rescales_capture_and_points():
     # The same two points through the alignment: the door measures 2.0 m there too, Z up.
     result = align_gravity_and_scale(capture, known_distance=KnownDistance(a, b, 2.0), points=sfm_points)
     assert result.scale_source == "known distance"
-    print(result.description)
     door = result.similarity.apply_points(np.stack([a, b]))
     assert np.linalg.norm(door[1] - door[0]) == pytest.approx(2.0)
     assert door[1, 2] - door[0, 2] == pytest.approx(2.0, abs=0.02)  # vertical: the floor found gravity
@@ -197,5 +196,5 @@ def test_demo_sample_scale_from_the_floor_plane_within_one_percent():
     posed = [f for f in result.capture.frames if f.pose is not None]
     errors = pose_errors([f.pose for f in posed], [truth[f.image_path.stem] for f in posed])
     assert errors["scale"] == pytest.approx(1.0, abs=0.01)  # truth metres per estimated metre
-    # Z up for real: the true vertical direction, after the fit, is within a degree of +Z.
+    # Z up, floor at z = 0, metres: each camera's height above the floor is its true height.
     assert np.median(np.abs([f.pose[2, 3] - truth[f.image_path.stem][2, 3] for f in posed])) < 0.02
