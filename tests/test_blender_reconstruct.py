@@ -22,7 +22,7 @@ from conftest import scene_state
 
 # Tiny run: 16 cm voxels in a 2 m clipped room, 96 px images, 3 views per tile, 2 colour views.
 TINY = {"voxel_size": 0.16, "tile_size": 8, "view_count": 3, "image_size": 96, "colour_views": 2,
-        "max_room_size": (2.0, 2.0, 2.0), "weights_source": "RANDOM"}
+        "max_room_size": (2.0, 2.0, 2.0), "weights_source": "RANDOM", "method": "VORTX"}
 # The second real run: every setting that the engine sees differs.
 OTHER = {"voxel_size": 0.2, "view_count": 1, "seed": 3, "image_size": 64, "result_mode": "ADD"}
 

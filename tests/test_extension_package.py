@@ -49,6 +49,7 @@ INSTALL_AND_RUN = textwrap.dedent(
     assert bpy.ops.vortx.estimate_poses() == {"FINISHED"}
     posed = settings.posed_frame_count
     settings.weights_source = "RANDOM"
+    settings.method = "VORTX"
     settings.voxel_size, settings.tile_size, settings.view_count = 0.16, 8, 3
     settings.image_size, settings.colour_views, settings.max_room_size = 160, 3, (2.0, 2.0, 2.0)
     assert bpy.ops.vortx.reconstruct() == {"FINISHED"}

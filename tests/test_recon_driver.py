@@ -21,9 +21,9 @@ from engine.recon.network import load_network
 from engine.recon.synthetic import make_synthetic_capture
 
 # Tiny: 16 cm finest voxels, a 2 m clipped room, 160 px images, a few views per tile.
-TINY = ["--weights", "random", "--voxel-size", "0.16", "--tile-size", "8", "--views", "3", "--image-size", "160",
+TINY = ["--method", "vortx", "--weights", "random", "--voxel-size", "0.16", "--tile-size", "8", "--views", "3", "--image-size", "160",
         "--colour-views", "3", "--max-room-size", "2", "2", "2", "--quiet"]
-TINY_SETTINGS = dict(weights="random", voxel_size=0.16, tile_size=8, views=3, image_long_side=160,
+TINY_SETTINGS = dict(method="vortx", weights="random", voxel_size=0.16, tile_size=8, views=3, image_long_side=160,
                      colour_views=3, max_room_size=(2.0, 2.0, 2.0))
 
 

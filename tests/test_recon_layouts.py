@@ -20,7 +20,7 @@ from engine.capture import load_capture
 from engine.mesh_io import read_ply
 from engine.recon.synthetic import make_synthetic_capture
 
-TINY = ["--weights", "random", "--voxel-size", "0.16", "--tile-size", "8", "--views", "3", "--image-size", "160",
+TINY = ["--method", "vortx", "--weights", "random", "--voxel-size", "0.16", "--tile-size", "8", "--views", "3", "--image-size", "160",
         "--colour-views", "2", "--max-room-size", "2", "2", "2", "--quiet"]
 REPO = Path(__file__).resolve().parent.parent
 

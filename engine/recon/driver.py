@@ -71,7 +71,7 @@ def reconstruct(
     cancel: Optional[CancelToken] = None,
     plan: Optional[ReconPlan] = None,
 ) -> ReconResult:
-    """Reconstruct a mesh from a posed capture.
+    """Reconstruct a mesh from a posed capture with `settings.method` (stereo fusion or VoRTX).
 
     plan: a plan made earlier with `plan_reconstruction(capture, settings)` (e.g. to draw its tiles
     while the run goes on: tile states change in place); made here when None.
@@ -79,6 +79,10 @@ def reconstruct(
     """
     settings.validate()
     device = resolve_device(settings.device)
+    if settings.method == "stereo":
+        from .stereo_fusion import run_stereo_fusion
+
+        return run_stereo_fusion(capture, settings, device, progress, cancel, plan)
     model, config, weights_label = load_network(settings.weights, settings.seed, device)
     return run_reconstruction(model, capture, settings, device, progress, cancel, plan, model_info={
         "weights": weights_label,

@@ -33,6 +33,8 @@ def level_label(voxel_size: float) -> str:
 # field cannot be forgotten by one entry point: `python -m engine reconstruct` and
 # scripts/vortx_batch.py generate a flag for each CLI field, Blender a scene property for each
 # BLENDER field (vortx_blender/properties.py).
+METHODS = ("stereo", "vortx")  # reconstruction methods, the default first
+
 CLI = "cli"
 BLENDER = "blender"
 ENGINE_ONLY: tuple[str, ...] = ()  # tuning knobs of the engine itself; changed in code, not by users
@@ -62,6 +64,10 @@ def setting(default: Any, help: str, expose: tuple[str, ...], *, min: Optional[f
 
 @dataclass
 class ReconSettings:
+    method: str = setting(
+        "stereo", "how the room is reconstructed: 'stereo' = plane-sweep stereo depth fused into a TSDF (no network, "
+        "the default: it beats the shipped weights); 'vortx' = the VoRTX network with the chosen weights",
+        (CLI, BLENDER), choices=METHODS, label="Method")
     weights: Optional[str] = setting(
         None, "weights .safetensors file, or 'random' (seeded random network: tests the pipeline, meaningless mesh)",
         (CLI,), default_text="the weights shipped with the extension")  # Blender: Weights source + file (reconstruct.py)
@@ -103,6 +109,27 @@ class ReconSettings:
     colour_views: int = setting(
         40, "keyframes (evenly spaced) that colour the mesh vertices; 0 leaves the mesh grey",
         (CLI, BLENDER), min=0, max=1000, label="Colour Views")
+
+    # Plane-sweep stereo (engine/stereo), the 'stereo' method's depth maps.
+    stereo_image_size: int = setting(
+        160, "long side in pixels of the photos matched by stereo (larger: finer depth, ~4x the time per 2x)",
+        (CLI, BLENDER), min=32, max=2048, label="Stereo Image Size")
+    stereo_views: int = setting(
+        100, "keyframes that get a stereo depth map (evenly spaced when there are more)",
+        (CLI, BLENDER), min=1, max=2000, label="Stereo Views")
+    stereo_planes: int = setting(
+        64, "depth hypotheses per pixel, uniform in inverse depth (a finer second sweep refines each pixel)",
+        (CLI, BLENDER), min=8, max=512, label="Depth Planes")
+    stereo_sources: int = setting(
+        4, "photos each depth map is matched against (the best half of them vote at each pixel)",
+        (CLI, BLENDER), min=1, max=16, label="Source Views")
+    stereo_min_ncc: float = setting(
+        0.5, "minimum matching score (normalised cross-correlation) for a depth to be kept",
+        (CLI, BLENDER), min=-1.0, max=0.99, flag="--stereo-min-ncc", label="Min Match Score")
+    stereo_consistency: int = setting(
+        0, "keep a depth only if this many other depth maps agree within 2 % (0 = off; fusion already "
+        "filters most outliers, and a strict check loses more surface than noise)",
+        (CLI, BLENDER), min=0, max=10, label="Consistency Views")
 
     @property
     def colour(self) -> bool:
@@ -194,7 +221,8 @@ def add_setting_arguments(parser: argparse.ArgumentParser) -> None:
     for f in setting_fields(CLI):
         meta, kind, default = f.metadata, value_type(f), field_default(f)
         shown = meta["default_text"] or "%(default)s"
-        options: dict[str, Any] = {"dest": f.name, "default": default, "help": f"{meta['help']} (default: {shown})"}
+        help_text = meta["help"].replace("%", "%%")  # argparse formats help with %
+        options: dict[str, Any] = {"dest": f.name, "default": default, "help": f"{help_text} (default: {shown})"}
         if kind is bool:
             options["action"] = argparse.BooleanOptionalAction
         elif kind is tuple:

@@ -124,7 +124,7 @@ INSPECT_CAMERAS = textwrap.dedent(
 def _batch_world(capture_path: Path, tmp_path: Path) -> np.ndarray:
     out = tmp_path / "batch" / "scene.blend"
     env = dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "batch-user"))
-    tiny = ["--weights", "random", "--voxel-size", "0.16", "--tile-size", "8", "--views", "3", "--image-size", "160",
+    tiny = ["--method", "vortx", "--weights", "random", "--voxel-size", "0.16", "--tile-size", "8", "--views", "3", "--image-size", "160",
             "--colour-views", "0", "--max-room-size", "3", "3", "3"]
     run = subprocess.run([sys.executable, str(REPO / "scripts" / "vortx_batch.py"), str(capture_path), "--out", str(out),
                           "--camera-height", str(CAMERA_HEIGHT), *tiny],

@@ -1,0 +1,130 @@
+"""The classical method: plane-sweep stereo depth -> TSDF fusion -> marching cubes -> coloured mesh.
+
+No network and no weights: it is the honest floor of the learned method and the fallback that works
+out of the box. The plan (keyframes, bounds, tiles) is the same as VoRTX's, so Blender draws the same
+tile overlay and the result lands in the same voxel grid.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Optional
+
+import numpy as np
+import torch
+
+from ..capture import Capture
+from ..jobs import CancelToken, ProgressCallback, check, report
+from ..stereo import StereoOptions, estimate_depth_maps, fuse_depth_maps, stereo_references
+from ..stereo.depth_maps import DepthMap
+from .memory import PeakMemory
+from .mesh import extract_mesh
+from .plan import ReconPlan, plan_reconstruction, posed_frames
+from .recon_result import ReconResult, empty_mesh
+from .settings import ReconSettings
+from .tiles import TileState
+
+MIN_OBSERVATIONS = 1  # depth maps that must have updated a voxel before it can carry a surface
+
+
+def stereo_options(settings: ReconSettings, device: torch.device) -> StereoOptions:
+    """The stereo knobs of a reconstruction's settings (the depth range reaches past the frustum depth
+    that bounds the scene, so a wall at the far side still has a plane behind it)."""
+    return StereoOptions(long_side=settings.stereo_image_size, planes=settings.stereo_planes,
+                         sources=settings.stereo_sources,
+                         best_k=max(1, settings.stereo_sources // 2), min_ncc=settings.stereo_min_ncc,
+                         max_references=settings.stereo_views, consistency_views=settings.stereo_consistency,
+                         max_depth=1.25 * settings.frustum_depth, device=str(device))
+
+
+def stereo_depth_maps(
+    capture: Capture, plan: ReconPlan, options: StereoOptions,
+    progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
+) -> list[DepthMap]:
+    """Depth maps of (up to `options.max_references`) keyframes; sources come from every posed frame.
+
+    DepthMap.frame indexes `plan.keyframes`.
+    """
+    usable, _ = posed_frames(capture)
+    frames = [capture.frames[i] for i in usable]
+    poses = np.stack([f.pose for f in frames]).astype(np.float64)
+    position = {frame_id: p for p, frame_id in enumerate(usable)}
+    chosen = stereo_references(len(plan.keyframes), options.max_references)
+    references = [position[plan.keyframe_ids[k]] for k in chosen]
+    bounds = (plan.bounds.minimum, plan.bounds.maximum)
+    maps = estimate_depth_maps(frames, poses, references, options, bounds=bounds, progress=progress, cancel=cancel)
+    for m, k in zip(maps, chosen):
+        m.frame = int(k)
+    return maps
+
+
+def fusion_grid(plan: ReconPlan, voxel_size: float) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """Origin (3,) and dims of a dense grid over the scene bounds, aligned with the plan's voxel grid."""
+    origin = plan.grid.origin.astype(np.float64)
+    dims = np.ceil((plan.bounds.maximum - origin) / voxel_size).astype(np.int64) + 1
+    return origin, tuple(int(d) for d in np.maximum(dims, 2))
+
+
+def run_stereo_fusion(
+    capture: Capture,
+    settings: ReconSettings,
+    device: torch.device,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+    plan: Optional[ReconPlan] = None,
+) -> ReconResult:
+    """Reconstruct a mesh from a posed, metric capture with stereo fusion (see module doc)."""
+    from .driver import StageTimer, colour_mesh  # the VoRTX driver's timer and colouring, shared
+
+    timer = StageTimer()
+    started, cpu_started = time.perf_counter(), time.process_time()
+    stats: dict[str, Any] = {"settings": settings.to_dict(), "model": {"method": "stereo"}, "device": str(device),
+                             "torch": torch.__version__, "frames": len(capture.frames), "warnings": []}
+    options = stereo_options(settings, device)
+    options.validate()
+    with PeakMemory(device) as memory:
+        with timer.stage("keyframes"):
+            plan = plan or plan_reconstruction(capture, settings, progress, cancel)
+        stats.update({"keyframes": len(plan.keyframes), "keyframe_ids": list(plan.keyframe_ids),
+                      "bounds": {"min": plan.bounds.minimum.tolist(), "max": plan.bounds.maximum.tolist(),
+                                 "clipped": list(plan.bounds.clipped)},
+                      "tiles": {"count": len(plan.tiles), "active": len(plan.active_tiles)}})
+        for tile in plan.active_tiles:
+            tile.state = TileState.RUNNING
+        with timer.stage("stereo depth"):
+            maps = stereo_depth_maps(capture, plan, options, progress, cancel)
+        stats["stereo"] = {
+            "references": len(maps), "image_size": list(maps[0].depth.shape[::-1]) if maps else [],
+            "completeness_mean": round(float(np.mean([m.completeness for m in maps])), 4) if maps else 0.0,
+            "options": {k: v for k, v in vars(options).items() if k != "device"},
+        }
+        check(cancel)
+        with timer.stage("TSDF fusion"):
+            origin, dims = fusion_grid(plan, settings.voxel_size)
+            tsdf, weight = fuse_depth_maps(maps, origin, dims, settings.voxel_size, device, progress, cancel)
+        check(cancel)
+        report(progress, "mesh", 0, 1)
+        with timer.stage("mesh"):
+            observed = weight >= MIN_OBSERVATIONS
+            mesh = extract_mesh(np.argwhere(observed), tsdf[observed], origin, settings.voxel_size)
+            del tsdf, weight, observed
+        report(progress, "mesh", 1, 1)
+        message = None
+        if len(mesh.faces) == 0:
+            message = ("stereo found no surface: the photos may lack texture or overlap, or the poses are not "
+                       "metric and gravity-aligned (metres, world Z up)")
+            mesh = empty_mesh()
+        else:
+            with timer.stage("colour"):
+                mesh.colors = colour_mesh(mesh, plan, settings, progress, cancel)
+    for tile in plan.active_tiles:
+        tile.state = TileState.DONE if message is None else TileState.EMPTY
+    stats["mesh"] = {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces))}
+    stats["timings_s"] = {**{k: round(v, 4) for k, v in timer.seconds.items()}, "total": round(time.perf_counter() - started, 4)}
+    stats["cpu_timings_s"] = {**{k: round(v, 4) for k, v in timer.cpu_seconds.items()},
+                              "total": round(time.process_time() - cpu_started, 4)}
+    stats["memory"] = memory.to_dict()
+    stats["warnings"] = list(plan.warnings)
+    stats["message"] = message
+    stats["tiles"]["states"] = {s.value: sum(t.state is s for t in plan.tiles) for s in TileState}
+    return ReconResult(mesh, plan.tiles, stats, message, warnings=list(plan.warnings))

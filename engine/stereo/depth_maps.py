@@ -1,0 +1,184 @@
+"""Stereo depth maps of a posed capture: which views are references, their depth ranges, the sweep
+for each, and the optional cross-view consistency filter.
+
+References are the reconstruction's keyframes (at most `max_references`, evenly spaced); sources are
+chosen among all posed frames, so a capture with many near-duplicate photos still gives each
+reference a good baseline.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import cv2
+import numpy as np
+import torch
+
+from ..capture import Frame
+from ..jobs import CancelToken, ProgressCallback, check, report
+from ..geometry.cameras import scale_intrinsics
+from ..recon.images import load_resized, resized_size
+from .options import StereoOptions
+from .source_views import select_sources
+from .sweep import sweep_depth
+
+MIN_RANGE_POINTS = 30  # sparse points a view must see before its depth range is taken from them
+CONSISTENCY_NEIGHBOURS = 6  # references a depth is checked against
+CONSISTENCY_RELATIVE_DEPTH = 0.02  # two depths agree within 2 % (stereo-evidence.md)
+
+
+@dataclass
+class DepthMap:
+    """One reference view's stereo result, at the stereo resolution."""
+
+    frame: int  # position in the frame list given to `estimate_depth_maps`
+    depth: np.ndarray  # (h, w) float32 metres (planar z), 0 = no depth
+    confidence: np.ndarray  # (h, w) float32 in [0, 1], 0 where no depth
+    K: np.ndarray  # (3, 3) float64 in pixels of `depth`
+    pose: np.ndarray  # (4, 4) float64 camera-to-world
+    sources: np.ndarray  # (S,) int64 positions of the source frames used
+    depth_range: tuple[float, float]  # (near, far) metres swept
+
+    @property
+    def completeness(self) -> float:
+        """Share of pixels with a depth."""
+        return float((self.depth > 0).mean())
+
+
+def stereo_references(count: int, max_references: int) -> np.ndarray:
+    """(R,) int64 positions of at most `max_references` of `count` keyframes, evenly spaced."""
+    if count <= max_references:
+        return np.arange(count, dtype=np.int64)
+    return np.unique(np.round(np.linspace(0, count - 1, max_references)).astype(np.int64))
+
+
+def grey_image(frame: Frame, long_side: int) -> tuple[np.ndarray, tuple[int, int]]:
+    """(h, w) float32 grey in [0, 1] at a long side of `long_side` pixels, and its size (w, h)."""
+    size = resized_size(frame.width, frame.height, min(long_side, max(frame.width, frame.height)), multiple=1)
+    rgb = load_resized(frame, size)
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0, size
+
+
+def depth_range(
+    K: np.ndarray, pose: np.ndarray, size: tuple[int, int], options: StereoOptions,
+    points: Optional[np.ndarray] = None, bounds: Optional[tuple[np.ndarray, np.ndarray]] = None,
+) -> tuple[float, float]:
+    """(near, far) metres for one view.
+
+    From the sparse SfM points it sees when there are enough (1st-99th percentile, widened by
+    0.75x / 1.25x as COLMAP does), else from the scene bounds (the farthest corner of the box);
+    always within the options' [min_depth, max_depth].
+    """
+    near, far = options.min_depth, options.max_depth
+    world_to_cam = np.linalg.inv(pose)
+    if points is not None and len(points):
+        cam = points @ world_to_cam[:3, :3].T + world_to_cam[:3, 3]
+        z = cam[:, 2]
+        front = z > 1e-3
+        u = K[0, 0] * cam[front, 0] / z[front] + K[0, 2]
+        v = K[1, 1] * cam[front, 1] / z[front] + K[1, 2]
+        seen = z[front][(u >= 0) & (u < size[0]) & (v >= 0) & (v < size[1])]
+        if len(seen) >= MIN_RANGE_POINTS:
+            lo, hi = np.percentile(seen, [1, 99])
+            near, far = max(near, 0.75 * lo), min(far, 1.25 * hi)
+            return (near, far) if far > near * 1.1 else (options.min_depth, options.max_depth)
+    if bounds is not None:
+        lo, hi = bounds
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+        z = (corners @ world_to_cam[:3, :3].T + world_to_cam[:3, 3])[:, 2]
+        far = min(far, max(float(z.max()), near * 2))
+    return near, far
+
+
+def estimate_depth_maps(
+    frames: Sequence[Frame],
+    poses: np.ndarray,
+    references: Sequence[int],
+    options: StereoOptions,
+    points: Optional[np.ndarray] = None,
+    bounds: Optional[tuple[np.ndarray, np.ndarray]] = None,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+) -> list[DepthMap]:
+    """Depth maps for `references` (positions in `frames`), matched against any of `frames`.
+
+    frames: posed frames with K; poses (F, 4, 4) camera-to-world (the frames' poses, metres);
+    points: optional (N, 3) sparse points for the depth ranges; bounds: optional (min, max) of the
+    scene box. Images are read once each, at the stereo resolution.
+    """
+    options.validate()
+    device = torch.device(options.device)
+    poses = np.asarray(poses, dtype=np.float64)
+    images: dict[int, tuple[torch.Tensor, np.ndarray]] = {}
+
+    def image(i: int) -> tuple[torch.Tensor, np.ndarray]:
+        if i not in images:
+            grey, size = grey_image(frames[i], options.long_side)
+            K = scale_intrinsics(frames[i].K, (frames[i].width, frames[i].height), size)
+            images[i] = (torch.as_tensor(grey, device=device), K)
+        return images[i]
+
+    maps: list[DepthMap] = []
+    for done, r in enumerate(references):
+        check(cancel)
+        report(progress, "stereo depth", done, len(references))
+        sources = select_sources(poses, int(r), options.sources)
+        reference, K_ref = image(int(r))
+        size = (reference.shape[1], reference.shape[0])
+        near_far = depth_range(K_ref, poses[r], size, options, points, bounds)
+        src_images = [image(int(s)) for s in sources]
+        shape = reference.shape
+        # Sources may differ in size (mixed captures are refused upstream, but stay general): stack
+        # only same-sized ones, which is every one in practice.
+        src_stack = torch.stack([im for im, _ in src_images if im.shape == shape]) if src_images else reference.new_zeros((0, *shape))
+        K_src = torch.as_tensor(np.stack([K for im, K in src_images if im.shape == shape]) if src_images else np.zeros((0, 3, 3)),
+                                dtype=torch.float32, device=device)
+        used = np.array([s for s, (im, _) in zip(sources, src_images) if im.shape == shape], dtype=np.int64)
+        src_from_ref = torch.as_tensor(np.linalg.inv(poses[used]) @ poses[r] if len(used) else np.zeros((0, 4, 4)),
+                                       dtype=torch.float32, device=device)
+        with torch.inference_mode():
+            result = sweep_depth(reference, src_stack, torch.as_tensor(K_ref, dtype=torch.float32, device=device), K_src,
+                                 src_from_ref, near_far, options.planes, options.refine_planes, options.best_k,
+                                 options.window, options.min_ncc)
+        maps.append(DepthMap(int(r), result.depth.cpu().numpy().astype(np.float32),
+                             result.confidence.cpu().numpy().astype(np.float32), K_ref, poses[r], used, near_far))
+    report(progress, "stereo depth", len(references), len(references))
+    if options.consistency_views > 0:
+        filter_consistent(maps, options.consistency_views)
+    return maps
+
+
+def filter_consistent(maps: list[DepthMap], min_views: int) -> None:
+    """Drop, in place, depths that fewer than `min_views` other references confirm.
+
+    A depth is confirmed by a neighbouring reference when its 3D point projects into that view
+    and the neighbour's depth there agrees within 2 % of the point's depth in that view.
+    """
+    poses = np.stack([m.pose for m in maps])
+    confirmations = []
+    for a, m in enumerate(maps):
+        h, w = m.depth.shape
+        v, u = np.nonzero(m.depth > 0)
+        z = m.depth[v, u].astype(np.float64)
+        rays = np.linalg.inv(m.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
+        world = (m.pose[:3, :3] @ (rays * z) + m.pose[:3, 3:4]).T
+        count = np.zeros(len(z), dtype=np.int64)
+        for b in select_sources(poses, a, CONSISTENCY_NEIGHBOURS):
+            other = maps[int(b)]
+            cam = (world - other.pose[:3, 3]) @ other.pose[:3, :3]
+            zb = cam[:, 2]
+            front = zb > 1e-3
+            zs = np.where(front, zb, 1.0)
+            ub = np.floor(other.K[0, 0] * cam[:, 0] / zs + other.K[0, 2]).astype(np.int64)
+            vb = np.floor(other.K[1, 1] * cam[:, 1] / zs + other.K[1, 2]).astype(np.int64)
+            oh, ow = other.depth.shape
+            inside = front & (ub >= 0) & (ub < ow) & (vb >= 0) & (vb < oh)
+            found = np.zeros(len(z))
+            found[inside] = other.depth[vb[inside], ub[inside]]
+            count += (inside & (found > 0) & (np.abs(found - zb) <= CONSISTENCY_RELATIVE_DEPTH * zb)).astype(np.int64)
+        confirmations.append((v, u, count))
+    for m, (v, u, count) in zip(maps, confirmations):
+        drop = count < min_views
+        m.depth[v[drop], u[drop]] = 0.0
+        m.confidence[v[drop], u[drop]] = 0.0

@@ -1,0 +1,47 @@
+"""The knobs of plane-sweep stereo, with the values measured on the demo sample and a real kitchen
+(stereo-evidence.md: 160 px photos, 64 inverse-depth planes, 4 sources, 5 x 5 NCC, best-k, NCC >= 0.3)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..errors import VortxError
+
+
+@dataclass(frozen=True)
+class StereoOptions:
+    long_side: int = 160  # stereo image long side in pixels, independent of the network's image size
+    planes: int = 64  # depth hypotheses of the sweep, uniform in inverse depth
+    refine_planes: int = 8  # a second, per-pixel sweep over +-1 plane step around the first estimate (0 = off)
+    sources: int = 4  # source views per reference
+    best_k: int = 2  # aggregate the best k source scores: robust to a source that is occluded
+    window: int = 7  # NCC window side in pixels (odd); 7 beat 5 and 9 on the demo sample
+    min_ncc: float = 0.5  # depths whose aggregated NCC is below this are dropped
+    min_depth: float = 0.2  # metres: the nearest plane
+    max_depth: float = 5.0  # metres: the farthest plane (the depth range is narrowed per view to the scene)
+    max_references: int = 100  # keyframes used as references, evenly spaced when there are more
+    consistency_views: int = 0  # keep a depth only if this many other references agree (0 = off)
+    device: str = "cpu"
+
+    def validate(self) -> None:
+        """Raise VortxError naming the setting at fault."""
+        if self.long_side < 32:
+            raise VortxError(f"stereo long side must be at least 32 pixels, got {self.long_side}")
+        if self.planes < 3:
+            raise VortxError(f"stereo planes must be at least 3, got {self.planes}")
+        if self.refine_planes < 0:
+            raise VortxError(f"stereo refine planes cannot be negative, got {self.refine_planes}")
+        if self.sources < 1:
+            raise VortxError(f"stereo sources must be at least 1, got {self.sources}")
+        if not 1 <= self.best_k <= self.sources:
+            raise VortxError(f"stereo best-k must be between 1 and the number of sources ({self.sources}), got {self.best_k}")
+        if self.window < 3 or self.window % 2 == 0:
+            raise VortxError(f"stereo window must be an odd number of pixels >= 3, got {self.window}")
+        if not -1.0 <= self.min_ncc < 1.0:
+            raise VortxError(f"stereo minimum NCC must be in [-1, 1), got {self.min_ncc}")
+        if not 0 < self.min_depth < self.max_depth:
+            raise VortxError(f"stereo depth range must satisfy 0 < min ({self.min_depth}) < max ({self.max_depth})")
+        if self.max_references < 1:
+            raise VortxError(f"stereo references must be at least 1, got {self.max_references}")
+        if self.consistency_views < 0:
+            raise VortxError(f"stereo consistency views cannot be negative, got {self.consistency_views}")

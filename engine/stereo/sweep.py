@@ -1,0 +1,160 @@
+"""Plane sweep for one reference view: windowed NCC against warped sources, best-k aggregation,
+sub-plane refinement.
+
+Every depth hypothesis is a per-pixel map, so the same code runs the first sweep (fronto-parallel
+planes uniform in inverse depth) and the refinement sweep (a few finer hypotheses around each pixel's
+first estimate). For a hypothesis z(u, v) the reference pixel centre is lifted to
+z K_ref^-1 (u + 0.5, v + 0.5, 1), moved into each source and sampled there with `grid_sample`
+(pixel (0, 0) covers [0, 1)^2, so `align_corners=False` is the matching convention).
+
+Tensors: images (H, W) float in [0, 1] (grey); K (3, 3); src_from_ref (4, 4) maps reference camera
+coordinates to source camera coordinates; inverse depths (D, H, W) in 1/metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+MIN_TEXTURE_STD = 0.01  # grey-level std (0..1) in the window below which a reference pixel has no texture to match
+PLANE_CHUNK = 16  # hypotheses warped at once: bounds memory to sources x chunk x H x W
+
+
+@dataclass
+class SweepResult:
+    depth: Tensor  # (H, W) metres, 0 where no depth was found
+    confidence: Tensor  # (H, W) aggregated NCC of the chosen depth in [0, 1], 0 where no depth
+
+
+def box_mean(x: Tensor, window: int) -> Tensor:
+    """Window mean of (..., H, W) (a box filter; borders average only the pixels inside the image)."""
+    shape = x.shape
+    flat = x.reshape(-1, 1, *shape[-2:])
+    out = F.avg_pool2d(flat, window, stride=1, padding=window // 2, count_include_pad=False)
+    return out.reshape(shape)
+
+
+def pixel_rays(K: Tensor, height: int, width: int) -> Tensor:
+    """(3, H * W) rays K^-1 (u + 0.5, v + 0.5, 1) through the pixel centres (z = 1)."""
+    v, u = torch.meshgrid(torch.arange(height, dtype=K.dtype, device=K.device) + 0.5,
+                          torch.arange(width, dtype=K.dtype, device=K.device) + 0.5, indexing="ij")
+    pixels = torch.stack([u.reshape(-1), v.reshape(-1), torch.ones_like(u).reshape(-1)])
+    return torch.linalg.inv(K) @ pixels
+
+
+def warp_source(source: Tensor, K_src: Tensor, src_from_ref: Tensor, rays: Tensor, depths: Tensor) -> tuple[Tensor, Tensor]:
+    """The source image seen at each reference pixel for each depth hypothesis.
+
+    source (H, W); rays (3, H*W); depths (D, H, W). Returns warped (D, H, W) and inside (D, H, W) bool
+    (the point is in front of the source camera and projects into its image).
+    """
+    D, H, W = depths.shape
+    points = rays[None] * depths.reshape(D, 1, -1)  # (D, 3, HW) reference camera coordinates
+    moved = src_from_ref[:3, :3] @ points + src_from_ref[:3, 3:4]
+    projected = K_src @ moved
+    z = projected[:, 2]
+    in_front = z > 1e-6
+    z_safe = torch.where(in_front, z, torch.ones_like(z))
+    u, v = projected[:, 0] / z_safe, projected[:, 1] / z_safe
+    sh, sw = source.shape
+    inside = in_front & (u >= 0) & (u <= sw) & (v >= 0) & (v <= sh)
+    grid = torch.stack([2.0 * u / sw - 1.0, 2.0 * v / sh - 1.0], dim=-1).reshape(D, H, W, 2)
+    warped = F.grid_sample(source[None, None].expand(D, 1, sh, sw), grid.to(source.dtype), mode="bilinear",
+                           padding_mode="border", align_corners=False)
+    return warped[:, 0], inside.reshape(D, H, W)
+
+
+def ncc_scores(
+    reference: Tensor, sources: Tensor, K_ref: Tensor, K_src: Tensor, src_from_ref: Tensor, inv_depths: Tensor, window: int,
+) -> Tensor:
+    """(S, D, H, W) windowed NCC of the reference against each warped source, -1 where the source
+    cannot see the hypothesis."""
+    H, W = reference.shape
+    rays = pixel_rays(K_ref, H, W)
+    mean_r = box_mean(reference, window)
+    std_r = (box_mean(reference * reference, window) - mean_r ** 2).clamp_min(0).sqrt()
+    depths = 1.0 / inv_depths
+    scores = torch.full((len(sources), *inv_depths.shape), -1.0, dtype=reference.dtype, device=reference.device)
+    for s in range(len(sources)):
+        for a in range(0, len(inv_depths), PLANE_CHUNK):
+            warped, inside = warp_source(sources[s], K_src[s], src_from_ref[s], rays, depths[a:a + PLANE_CHUNK])
+            mean_s = box_mean(warped, window)
+            var_s = (box_mean(warped * warped, window) - mean_s ** 2).clamp_min(0)
+            cov = box_mean(warped * reference, window) - mean_s * mean_r
+            ncc = cov / (std_r * var_s.sqrt()).clamp_min(1e-6)
+            scores[s, a:a + PLANE_CHUNK] = torch.where(inside, ncc.clamp(-1, 1), torch.full_like(ncc, -1.0))
+    return scores
+
+
+def aggregate(scores: Tensor, best_k: int) -> Tensor:
+    """(D, H, W) mean of the best k source scores: an occluded or out-of-view source does not veto."""
+    k = min(best_k, scores.shape[0])
+    return scores.topk(k, dim=0).values.mean(dim=0)
+
+
+def parabola_offset(cost: Tensor, best: Tensor) -> Tensor:
+    """Sub-hypothesis offset in (-0.5, 0.5) of a parabola through the scores at best - 1, best, best + 1.
+
+    cost (D, H, W); best (H, W) long. 0 at the ends of the range or where the peak is not a maximum.
+    """
+    D = cost.shape[0]
+    lo, hi = (best - 1).clamp(0, D - 1), (best + 1).clamp(0, D - 1)
+    c0 = cost.gather(0, best[None])[0]
+    cm, cp = cost.gather(0, lo[None])[0], cost.gather(0, hi[None])[0]
+    curvature = cm - 2 * c0 + cp
+    interior = (best > 0) & (best < D - 1) & (curvature < -1e-6)
+    offset = 0.5 * (cm - cp) / torch.where(interior, curvature, torch.full_like(curvature, -1.0))
+    return torch.where(interior, offset.clamp(-0.5, 0.5), torch.zeros_like(offset))
+
+
+def sweep_depth(
+    reference: Tensor,
+    sources: Tensor,
+    K_ref: Tensor,
+    K_src: Tensor,
+    src_from_ref: Tensor,
+    depth_range: tuple[float, float],
+    planes: int,
+    refine_planes: int,
+    best_k: int,
+    window: int,
+    min_ncc: float,
+) -> SweepResult:
+    """Depth and confidence of one reference view.
+
+    reference (H, W); sources (S, H', W') (any size); K_ref (3, 3), K_src (S, 3, 3) in pixels of their
+    images; src_from_ref (S, 4, 4); depth_range (near, far) metres. A pixel gets a depth when its
+    aggregated NCC reaches `min_ncc`, it has texture, and the best plane is not at an end of the range
+    (a peak there means the surface is outside the range).
+    """
+    H, W = reference.shape
+    dtype, device = reference.dtype, reference.device
+    zero = torch.zeros((H, W), dtype=dtype, device=device)
+    if len(sources) == 0:
+        return SweepResult(zero, zero.clone())
+    near, far = depth_range
+    inv = torch.linspace(1.0 / far, 1.0 / near, planes, dtype=dtype, device=device)
+    hypotheses = inv[:, None, None].expand(planes, H, W)
+    cost = aggregate(ncc_scores(reference, sources, K_ref, K_src, src_from_ref, hypotheses, window), best_k)
+    best = cost.argmax(dim=0)
+    at_end = (best == 0) | (best == planes - 1)
+    step = (inv[1] - inv[0])
+    estimate = inv[best] + parabola_offset(cost, best) * step
+    confidence = cost.gather(0, best[None])[0]
+    if refine_planes > 1:
+        # A finer per-pixel sweep over +-1 first-pass step: the first pass's step is ~0.3 m at 2 m.
+        fine = torch.linspace(-1.0, 1.0, refine_planes, dtype=dtype, device=device) * step
+        hypotheses = (estimate[None] + fine[:, None, None]).clamp_min(1.0 / (far * 4))
+        fine_cost = aggregate(ncc_scores(reference, sources, K_ref, K_src, src_from_ref, hypotheses, window), best_k)
+        fine_best = fine_cost.argmax(dim=0)
+        fine_step = fine[1] - fine[0]
+        estimate = hypotheses.gather(0, fine_best[None])[0] + parabola_offset(fine_cost, fine_best) * fine_step
+        confidence = torch.maximum(confidence, fine_cost.gather(0, fine_best[None])[0])
+    mean_r = box_mean(reference, window)
+    textured = (box_mean(reference * reference, window) - mean_r ** 2).clamp_min(0).sqrt() >= MIN_TEXTURE_STD
+    keep = textured & ~at_end & (confidence >= min_ncc) & (estimate > 0)
+    depth = torch.where(keep, 1.0 / estimate.clamp_min(1e-6), zero)
+    return SweepResult(depth, torch.where(keep, confidence.clamp(0, 1), zero))
