@@ -156,4 +156,5 @@ def finish_capture(root: Path, format: str, frames: list[Frame], infos: list[Ima
     require_frames(frames, where, what, dropped)
     skip_warning = [skipped.warning()] if skipped else []
     return Capture(root=root, format=format, frames=frames, metric=metric,
-                   warnings=list(warnings) + skip_warning + duplicate_warnings)
+                   warnings=list(warnings) + skip_warning + duplicate_warnings,
+                   skipped=[name for name, _, _ in skipped.entries])

@@ -16,6 +16,7 @@ The world frame is COLMAP's (arbitrary orientation and scale): `metric` is False
 Registered images whose photo is missing or whose pose is not finite are skipped with a warning;
 quaternions that are not unit length (rounded by the writer) are normalised when within
 `geometry.ROTATION_TOLERANCE`, with one warning when they were off by more than rounding.
+The model's sparse points (points3D, with their colours) come along as `Capture.points`.
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ import numpy as np
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
 from .checks import SkippedPhotos, finish_capture, inspect_images
-from .colmap_model import ColmapCamera, ColmapModel, model_kind, read_model
+from .colmap_model import ColmapCamera, ColmapModel, model_kind, read_model, read_points
 from .colmap_model import ColmapImage
 from .geometry import (ROTATION_TOLERANCE, PoseRepairs, camera_to_world_from_world_to_camera, fit_intrinsics, pinhole,
                        quaternion_deviation, quaternion_to_rotation)
@@ -194,4 +195,18 @@ def load_colmap(path: Path, options: LoadOptions, progress: Optional[ProgressFn]
     metric = bool(options.metric)
     capture = finish_capture(path, "colmap", frames, usable_infos, model.folder, metric, warnings, skipped,
                              what="posed photo")
+    capture = _with_model_points(capture, model)
     return undistort_capture(capture, distortion, options, progress, cancel)
+
+
+def _with_model_points(capture: Capture, model: ColmapModel) -> Capture:
+    """`capture` with the model's sparse points (points3D), when it has any. They are optional (the
+    poses are what the capture needs), so an unreadable points file is a warning, not a failure."""
+    try:
+        points = read_points(model.folder, model.kind)
+    except CaptureError as error:
+        return capture.with_frames(capture.frames, warnings=capture.warnings + [f"sparse points left out: {error}"])
+    if points is None or len(points.xyz) == 0:
+        return capture
+    finite = np.all(np.isfinite(points.xyz), axis=1)
+    return capture.with_points(points.xyz[finite], points.rgb[finite])

@@ -1,7 +1,8 @@
 """Readers for COLMAP sparse models, text (cameras.txt, images.txt) and binary (.bin).
 
 Written here rather than through `pycolmap.Reconstruction(path)` because the loader needs only
-cameras and image poses (points3D.* is never read, so a model without it still loads), it must
+cameras, image poses and the sparse points' positions and colours (a model without points3D.* still
+loads: the points are optional), it must
 report an unsupported camera model by name instead of failing inside C++, and `python -m engine
 info` should not pay for importing pycolmap. Layouts follow COLMAP's `read_write_model.py`; the
 files written by COLMAP 4.2 (pycolmap 4.2.1), whose rigs/frames files are ignored here, have
@@ -13,6 +14,9 @@ Binary layouts (little endian):
   images.bin:  uint64 n, then n x [uint32 image_id, float64 qw qx qy qz, float64 tx ty tz,
                uint32 camera_id, name (bytes up to NUL), uint64 num_points2D,
                num_points2D x (float64 x, float64 y, int64 point3D_id)]
+  points3D.bin: uint64 n, then n x [uint64 point3D_id, float64 x y z, uint8 r g b, float64 error,
+               uint64 track_length, track_length x (int32 image_id, int32 point2D_idx)]
+Text: points3D.txt has one line per point: POINT3D_ID X Y Z R G B ERROR then the track.
 """
 
 from __future__ import annotations
@@ -68,6 +72,25 @@ class ColmapModel:
     @property
     def images_file(self) -> Path:
         return self.folder / ("images.txt" if self.kind == "text" else "images.bin")
+
+
+@dataclass(frozen=True)
+class ColmapPoints:
+    xyz: np.ndarray  # (N, 3) float64, in the model's world
+    rgb: np.ndarray  # (N, 3) uint8
+
+
+def points_file(folder: Path, kind: str) -> Path:
+    return folder / ("points3D.txt" if kind == "text" else "points3D.bin")
+
+
+def read_points(folder: Path, kind: str) -> ColmapPoints | None:
+    """The sparse points of the model in `folder` ("text" or "binary"), or None when it has no
+    points3D file; CaptureError naming the file when it is unreadable."""
+    path = points_file(folder, kind)
+    if not path.is_file():
+        return None
+    return _read_points_text(path) if kind == "text" else _read_points_binary(path)
 
 
 def model_kind(folder: Path) -> str | None:
@@ -205,3 +228,37 @@ def _read_images_binary(path: Path) -> list[ColmapImage]:
         reader.skip(24 * num_points)  # (x, y, point3D_id) per 2D point: not needed for poses
         images.append(ColmapImage(image_id, np.array([qw, qx, qy, qz]), np.array([tx, ty, tz]), camera_id, name))
     return images
+
+
+def _read_points_text(path: Path) -> ColmapPoints:
+    xyz, rgb = [], []
+    for number, line in _data_lines(path):
+        if not line or line.startswith("#"):
+            continue
+        fields = line.split()
+        try:
+            xyz.append([float(v) for v in fields[1:4]])
+            rgb.append([int(v) for v in fields[4:7]])
+        except ValueError as error:
+            raise _bad_line(path, number, str(error)) from error
+        if len(xyz[-1]) != 3 or len(rgb[-1]) != 3:
+            raise _bad_line(path, number, "a point needs an id, X Y Z and R G B")
+        if not all(0 <= v <= 255 for v in rgb[-1]):
+            raise _bad_line(path, number, f"colour {rgb[-1]} is outside 0..255")
+    return ColmapPoints(np.array(xyz, dtype=np.float64).reshape(-1, 3), np.array(rgb, dtype=np.uint8).reshape(-1, 3))
+
+
+def _read_points_binary(path: Path) -> ColmapPoints:
+    reader = _Reader(path)
+    (count,) = reader.take("<Q")
+    if count * struct.calcsize("<Q3d3BdQ") > len(reader.data):  # before allocating for a bogus count
+        raise CaptureError(f"{path} is truncated or not a COLMAP binary file (it claims {count} points in "
+                           f"{len(reader.data)} bytes): re-export the model with COLMAP.")
+    xyz = np.empty((count, 3), dtype=np.float64)
+    rgb = np.empty((count, 3), dtype=np.uint8)
+    for i in range(count):
+        _point_id, x, y, z, r, g, b, _error, track_length = reader.take("<Q3d3BdQ")
+        xyz[i] = (x, y, z)
+        rgb[i] = (r, g, b)
+        reader.skip(8 * track_length)  # (image_id, point2D_idx) per observation: not needed
+    return ColmapPoints(xyz, rgb)

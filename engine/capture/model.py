@@ -40,6 +40,12 @@ class Capture:
     metric: bool = False  # True when poses are already in metres (ScanNet layout, metric transforms.json)
     warnings: list[str] = field(default_factory=list)  # problems the user should know of (skipped frames...)
     notes: list[str] = field(default_factory=list)  # what loading did that is no problem (where derived files went)
+    skipped: list[str] = field(default_factory=list)  # file names of the photos left out as unusable (see warnings)
+    # Sparse 3D points seen in the photos (a COLMAP model's points3D, an SfM result), in the same world
+    # as the poses: they show the scene before reconstructing and let the floor be found. Whatever moves
+    # the poses must move them too (`with_points`), so a transform that only replaces frames drops them.
+    points: Optional[np.ndarray] = None  # (N, 3) float64, or None when the capture has none
+    point_colors: Optional[np.ndarray] = None  # (N, 3) uint8 RGB, with `points`
 
     @property
     def posed_frames(self) -> list[Frame]:
@@ -52,3 +58,15 @@ class Capture:
 
     def with_frames(self, frames: list[Frame], **changes) -> "Capture":
         return replace(self, frames=frames, **changes)
+
+    def with_points(self, points: Optional[np.ndarray], colors: Optional[np.ndarray] = None) -> "Capture":
+        """The capture with sparse `points` (N, 3) and their `colors` (N, 3) uint8 (grey when None)."""
+        if points is None:
+            return replace(self, points=None, point_colors=None)
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        if colors is None:
+            colors = np.full((len(points), 3), 128, dtype=np.uint8)
+        colors = np.asarray(colors, dtype=np.uint8).reshape(-1, 3)
+        if len(colors) != len(points):
+            raise ValueError(f"{len(points)} sparse points but {len(colors)} point colours")
+        return replace(self, points=points, point_colors=colors)
