@@ -13,6 +13,7 @@ from pathlib import Path
 from ..errors import VortxError
 from ..jobs import TqdmProgress
 from .render import RENDERERS, RenderSettings
+from .room import SURFACE_MIXES
 from .synth import SynthOptions, synthesize_rooms
 
 
@@ -38,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--samples", type=int, default=16, help="Cycles samples per pixel")
     parser.add_argument("--no-denoise", action="store_true", help="Cycles: skip OpenImageDenoise (faster, grainier)")
     parser.add_argument("--hfov", type=float, default=60.0, help="horizontal field of view in degrees")
+    parser.add_argument("--surfaces", choices=SURFACE_MIXES, default="textured",
+                        help="textured: every surface patterned; mixed: also plain painted walls and dark or "
+                             "glossy furniture, as real rooms have")
     parser.add_argument("--no-tsdf", action="store_true", help="do not fuse the ground-truth TSDF (tsdf_gt.npz)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -48,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     width, height = args.resolution
     settings = RenderSettings(renderer=args.renderer, width=width, height=height, hfov_deg=args.hfov,
                               samples=args.samples, denoise=not args.no_denoise)
-    options = SynthOptions(frames=args.frames, render=settings, write_tsdf=not args.no_tsdf)
+    options = SynthOptions(frames=args.frames, render=settings, write_tsdf=not args.no_tsdf,
+                           surfaces=args.surfaces)
     progress = TqdmProgress(disable=args.quiet)
     try:
         folders = synthesize_rooms(args.rooms, args.out, options, first_seed=args.seed, progress=progress)

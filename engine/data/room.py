@@ -21,6 +21,12 @@ from .trajectory import PathLoop, make_path_loop
 
 WALL_THICKNESS = 0.12
 PATTERNS = ("noise", "voronoi", "brick", "wave", "checker", "marble")
+# Surface mixes of `generate_room`. "textured": every surface carries a visible pattern (the rooms the
+# v1/v2 weights were trained on). "mixed": like real rooms, a share of walls and ceilings is plain
+# paint (almost no texture: stereo finds nothing there) and a share of furniture is dark or glossy.
+SURFACE_MIXES = ("textured", "mixed")
+PLAIN_PAINT_SHARE = 0.5  # walls / ceilings turned plain in a "mixed" room
+DARK_OR_GLOSSY_SHARE = 0.3  # furniture / item materials turned dark or glossy in a "mixed" room
 
 
 @dataclass
@@ -108,8 +114,39 @@ class RoomSpec:
 # ------------------------------------------------------------------------------------------ sampling
 
 
-def generate_room(seed: int) -> RoomSpec:
-    """The room for `seed`: 3-8 m x 3-8 m, 2.4-3.2 m high, with openings, furniture, lights, materials."""
+def generate_room(seed: int, surfaces: str = "textured") -> RoomSpec:
+    """The room for `seed`: 3-8 m x 3-8 m, 2.4-3.2 m high, with openings, furniture, lights, materials.
+
+    surfaces: one of SURFACE_MIXES. "mixed" repaints some materials afterwards from a separate random
+    stream, so the geometry, cameras and other materials of a seed are the same under both mixes.
+    """
+    if surfaces not in SURFACE_MIXES:
+        raise ValueError(f"surfaces must be one of {SURFACE_MIXES}, got {surfaces!r}")
+    spec = _generate_textured_room(seed)
+    if surfaces == "mixed":
+        _repaint_mixed(spec, np.random.default_rng([seed, 2]))
+    return spec
+
+
+def _repaint_mixed(spec: RoomSpec, rng: np.random.Generator) -> None:
+    """In place: plain paint on a share of walls / ceilings, dark or glossy furniture and items."""
+    for name, m in sorted(spec.materials.items()):
+        if name.startswith(("wall", "ceiling")) and rng.random() < PLAIN_PAINT_SHARE:
+            # One colour with a barely visible tint: real paint, what plane-sweep stereo cannot match.
+            base = np.asarray(m.colors[0])
+            m.colors = [list(map(float, base)), list(map(float, np.clip(base * rng.uniform(0.97, 1.03), 0, 1))),
+                        list(map(float, np.clip(base * 0.9, 0, 1)))]
+            m.detail_strength = float(rng.uniform(0.0, 0.06))
+            m.speckle_strength = 0.0
+        elif name.startswith(("furn", "item")) and rng.random() < DARK_OR_GLOSSY_SHARE:
+            if rng.random() < 0.5:  # dark: little signal above the sensor noise
+                m.colors = [list(map(float, np.clip(np.asarray(c) * rng.uniform(0.05, 0.15), 0, 1))) for c in m.colors]
+            m.roughness = float(rng.uniform(0.02, 0.15))  # glossy (Cycles shows the highlights)
+            m.detail_strength = float(min(m.detail_strength, rng.uniform(0.0, 0.2)))
+            m.speckle_strength = 0.0
+
+
+def _generate_textured_room(seed: int) -> RoomSpec:
     rng = np.random.default_rng(seed)
     length, width = (float(round(x, 3)) for x in rng.uniform(3.0, 8.0, 2))
     height = float(round(rng.uniform(2.4, 3.2), 3))

@@ -41,6 +41,7 @@ class SynthOptions:
     voxel_size: float = 0.04
     trunc: float = 0.12
     depth_cap: float = 3.0
+    surfaces: str = "textured"  # engine.data.room.SURFACE_MIXES
 
 
 def room_name(seed: int) -> str:
@@ -78,7 +79,7 @@ def synthesize_room(
     work = final.with_name(final.name + PARTIAL_SUFFIX)
     work.mkdir(parents=True, exist_ok=True)
 
-    spec = generate_room(seed)
+    spec = generate_room(seed, options.surfaces)
     poses = room_poses(spec, options.frames)
     settings = options.render
     K = settings.K
@@ -135,6 +136,7 @@ def room_record(spec: RoomSpec, options: SynthOptions, K: np.ndarray, n_triangle
         "tsdf": {"voxel_size": options.voxel_size, "trunc": options.trunc, "depth_cap": options.depth_cap}
         if options.write_tsdf else None,
         "mesh_gt_triangles": n_triangles,
+        "surfaces": options.surfaces,
         "blender": bpy_version(),
         "conventions": "metres; world Z up; pose = camera-to-world, OpenCV camera axes; K pixel (0,0) "
                        "covers [0,1)^2; depth PNG uint16 mm; depth_float planar metres; 0 = no depth",
