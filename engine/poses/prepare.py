@@ -7,7 +7,11 @@ through each of them:
   sparse points), when the caller allows it;
 - posed captures in arbitrary units (COLMAP, most transforms.json) are rotated Z up and, where a
   floor can be found, scaled from the camera height (`align_gravity_and_scale`);
-- metric layouts (ScanNet, metric transforms.json) pass through untouched.
+- metric layouts (ScanNet, metric transforms.json) pass through untouched;
+- with `refine=True`, given poses (tracker, ARKit, SLAM, RGB-D rig) are first refined against the
+  photos (`refine.refine_poses`: pycolmap triangulation + bundle adjustment, brought back to the
+  given world); its triangulated points then serve the floor search of the alignment. Poses that
+  structure from motion just estimated are not refined again (bundle adjustment already did it).
 
 `PreparedCapture` says what was done (scale source, one-line description, warnings), so every entry
 point reports it in the same words.
@@ -26,8 +30,10 @@ from ..jobs import CancelToken, ProgressCallback
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .align import Similarity
 from .gravity import KnownDistance, align_gravity_and_scale
+from .refine import STATUS_NOT_REFINED, STATUS_REFUSED
 
 if TYPE_CHECKING:
+    from .refine import RefineOptions, RefineResult
     from .sfm import PoseResult, SfmOptions
 
 # When structure from motion runs.
@@ -50,6 +56,14 @@ class PreparedCapture:
     sfm: Optional["PoseResult"] = None  # the structure-from-motion result when SfM ran (its report, points)
     # What moved the given posed frames (x_new = s R x + t); None when SfM replaced them or there were none.
     similarity: Optional[Similarity] = None
+    # The refinement of the given poses when it ran (per-frame changes, refused frames, its points in
+    # the refined capture's world before the alignment above).
+    refinement: Optional["RefineResult"] = None
+    # Sparse points (N, 3) in the prepared world with their colours (N, 3) uint8: SfM's or the
+    # refinement's; None when neither ran.
+    points: Optional[np.ndarray] = None
+    point_colors: Optional[np.ndarray] = None
+    notes: list[str] = field(default_factory=list)  # what was done that is no problem (refinement not needed)
 
     @property
     def ran_sfm(self) -> bool:
@@ -60,17 +74,31 @@ class PreparedCapture:
         """What the entry points print (CLI) or log (Blender console): the SfM report when SfM ran,
         else the one-line description of the world."""
         if self.sfm is not None:
-            return self.sfm.report.splitlines()
-        return [f"poses: {self.description}"]
+            return self.sfm.report.splitlines() + [f"note: {n}" for n in self.notes]
+        lines = self.refinement.report.splitlines() if self.refinement is not None else []
+        return lines + [f"poses: {self.description}"] + [f"note: {n}" for n in self.notes]
 
     def moved(self, tolerance: float = 1e-5) -> bool:
-        """True when the given poses were changed by more than `tolerance` (metres at 1 m from the
-        origin, radians, relative scale); False when SfM replaced them (a new world, not a move)."""
+        """True when the given poses were changed: refined, or moved by more than `tolerance` (metres
+        at 1 m from the origin, radians, relative scale); False when SfM replaced them (a new world,
+        not a move)."""
+        if self.refinement is not None and self.refinement.refined:
+            return True
         if self.similarity is None:
             return False
         s = self.similarity
         return bool(abs(s.scale - 1.0) > tolerance or abs(s.rotation - np.eye(3)).max() > tolerance
                     or abs(s.translation).max() > tolerance)
+
+    def summary(self) -> dict:
+        """What preparation did, as JSON-ready data: the reconstruction sidecar's and the batch
+        report's "poses" entry."""
+        source = "structure from motion" if self.ran_sfm else ("none" if self.scale_source == NO_POSES else "given")
+        entry: dict = {"source": source, "refined": self.refinement is not None, "scale_source": self.scale_source,
+                       "description": self.description, "warnings": list(self.warnings), "notes": list(self.notes)}
+        if self.refinement is not None:
+            entry["refinement"] = refinement_summary(self.refinement)
+        return entry
 
     def pose_status(self) -> str:
         """The Blender panel's one-line pose status: how many frames are posed, by what, at which scale."""
@@ -95,6 +123,8 @@ def prepare_capture(
     known_distance: Optional[KnownDistance] = None,
     sfm: str = SFM_IF_UNPOSED,
     sfm_options: Optional["SfmOptions"] = None,
+    refine: bool = False,
+    refine_options: Optional["RefineOptions"] = None,
     progress: Optional[ProgressCallback] = None,
     cancel: Optional[CancelToken] = None,
 ) -> PreparedCapture:
@@ -102,7 +132,10 @@ def prepare_capture(
 
     `sfm` (one of SFM_MODES) says when structure from motion runs; `sfm_options` tunes it (its own
     camera_height / known_distance are replaced by the arguments here, so the scale has one source).
-    Raises PoseError for a bad camera height or known distance, or when SfM finds no poses.
+    `refine` refines the given poses against the photos first (`refine_options` tunes it); it is a
+    note, not an error, when SfM estimated the poses here (already adjusted) or none are given.
+    Raises PoseError for a bad camera height or known distance, when SfM finds no poses, or when the
+    refinement fails or looks like a failure (its message has the numbers).
     """
     if sfm not in SFM_MODES:
         raise ValueError(f"sfm must be one of {SFM_MODES}, got {sfm!r}")
@@ -110,12 +143,53 @@ def prepare_capture(
         raise PoseError(f"camera height must be positive, got {camera_height} m")
     posed = bool(capture.posed_frames)
     if sfm == SFM_ALWAYS or (sfm == SFM_IF_UNPOSED and not posed):
-        return _with_sfm(capture, camera_height, known_distance, sfm_options, progress, cancel)
+        prepared = _with_sfm(capture, camera_height, known_distance, sfm_options, progress, cancel)
+        if refine:
+            prepared.notes.append(REFINE_AFTER_SFM_NOTE)
+        return prepared
     if not posed:
-        return PreparedCapture(capture, NO_POSES, "no frame has a pose: run structure from motion (Estimate Poses)")
-    alignment = align_gravity_and_scale(capture, camera_height=camera_height, known_distance=known_distance)
-    return PreparedCapture(alignment.capture, alignment.scale_source, alignment.description, list(alignment.warnings),
-                           similarity=alignment.similarity)
+        prepared = PreparedCapture(capture, NO_POSES, "no frame has a pose: run structure from motion (Estimate Poses)")
+        if refine:
+            prepared.notes.append("no frame has a pose, so there is nothing to refine")
+        return prepared
+    refinement = None
+    points = colors = None
+    if refine:
+        from . import refine_poses  # at call time, so tests can stand in for `engine.poses.refine_poses`
+
+        refinement = refine_poses(capture, refine_options, progress=progress, cancel=cancel)
+        capture = refinement.capture
+        if len(refinement.points):
+            points, colors = refinement.points, refinement.point_colors
+    # The refinement's triangulated points let the alignment find the floor of a non-metric capture.
+    alignment = align_gravity_and_scale(capture, camera_height=camera_height, known_distance=known_distance,
+                                        points=points)
+    warnings = (list(refinement.warnings) if refinement is not None else []) + list(alignment.warnings)
+    return PreparedCapture(alignment.capture, alignment.scale_source, alignment.description, warnings,
+                           similarity=alignment.similarity, refinement=refinement, points=alignment.points,
+                           point_colors=colors)
+
+
+REFINE_AFTER_SFM_NOTE = ("pose refinement skipped: structure from motion estimated these poses just now and its "
+                         "bundle adjustment already fitted them to the photos")
+
+
+def refinement_summary(result: "RefineResult") -> dict:
+    """A refinement's report as JSON-ready data: counts, change median/max, refused frames and why."""
+    return {
+        "refined": len(result.refined),
+        "posed_frames": len(result.changes),
+        "units": result.units,
+        "rotation_deg_median": result.rotation_deg_median,
+        "rotation_deg_max": result.rotation_deg_max,
+        "translation_median": result.translation_median,
+        "translation_max": result.translation_max,
+        "refused": {c.name: c.reason for c in result.changes if c.status == STATUS_REFUSED},
+        "not_refined": {c.name: c.reason for c in result.changes if c.status == STATUS_NOT_REFINED},
+        "points": int(len(result.points)),
+        "mean_reprojection_error_px": result.mean_reprojection_error,
+        "timings_s": dict(result.timings),
+    }
 
 
 def _with_sfm(
@@ -134,4 +208,5 @@ def _with_sfm(
     result = estimate_poses(capture, options, progress=progress, cancel=cancel)
     alignment = result.alignment
     assert alignment is not None  # align=True above
-    return PreparedCapture(result.capture, alignment.scale_source, alignment.description, list(result.warnings), sfm=result)
+    return PreparedCapture(result.capture, alignment.scale_source, alignment.description, list(result.warnings), sfm=result,
+                           points=result.points, point_colors=result.point_colors)

@@ -1,9 +1,13 @@
 """`python -m engine reconstruct CAPTURE --out mesh.ply`: a capture with poses -> a mesh file + a JSON sidecar.
 
+The capture's own warnings (photos skipped, poses repaired) are printed right after loading. With
+`--refine-poses` the capture's poses are refined against the photos first (`engine.poses.refine`).
+
 The sidecar (`mesh.json` beside `mesh.ply`) records what the run did: timings per stage, voxels per
-level, views per tile, tile count, peak memory, the settings and the source capture. When no surface
-is found the (empty) mesh and the sidecar are still written, the reason is printed and the exit
-status is 1.
+level, views per tile, tile count, peak memory, the settings, the source capture, its warnings
+("capture_warnings") and what capture preparation did ("poses": source, scale, refinement). When no
+surface is found the (empty) mesh and the sidecar are still written, the reason is printed and the
+exit status is 1.
 """
 
 from __future__ import annotations
@@ -30,6 +34,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="metres above the floor, for the scale of captures whose poses are not metric "
                              "(default %(default)s)")
+    parser.add_argument("--refine-poses", action="store_true",
+                        help="refine the capture's own poses against the photos before reconstructing (for slightly-off "
+                             "tracker, ARKit or SLAM poses; the report gives each frame's change)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -40,8 +47,10 @@ def settings_from_args(args: argparse.Namespace) -> ReconSettings:
 def write_mesh(path: Path, mesh: Any) -> None:
     from ..mesh_io import write_obj, write_ply
 
-    writer = write_ply if path.suffix.lower() == ".ply" else write_obj
-    writer(path, mesh.vertices, mesh.faces, normals=mesh.normals, colors=mesh.colors)
+    if path.suffix.lower() == ".ply":
+        write_ply(path, mesh.vertices, mesh.faces, normals=mesh.normals, colors=mesh.colors, attributes=mesh.attributes)
+    else:  # OBJ has no place for per-vertex attributes
+        write_obj(path, mesh.vertices, mesh.faces, normals=mesh.normals, colors=mesh.colors)
 
 
 def sidecar_path(mesh_path: Path) -> Path:
@@ -68,10 +77,14 @@ def run(args: argparse.Namespace) -> int:
     from .driver import reconstruct
 
     capture = load_capture(args.capture)
+    capture_warnings = list(capture.warnings)
+    for warning in capture_warnings:
+        print(f"warning: {warning}", file=sys.stderr)
     progress = TqdmProgress(disable=args.quiet)
     try:
         # Photos without poses get structure from motion first, as `python -m engine poses` would.
-        prepared = prepare_capture(capture, camera_height=args.camera_height, sfm=SFM_IF_UNPOSED, progress=progress)
+        prepared = prepare_capture(capture, camera_height=args.camera_height, sfm=SFM_IF_UNPOSED,
+                                   refine=args.refine_poses, progress=progress)
         report_preparation(prepared)
         capture = prepared.capture
         result = reconstruct(capture, settings, progress=progress)
@@ -82,8 +95,8 @@ def run(args: argparse.Namespace) -> int:
     sidecar = {
         "capture": str(Path(args.capture).resolve()),
         "capture_format": capture.format,
-        "poses": {"scale_source": prepared.scale_source, "description": prepared.description,
-                  "warnings": prepared.warnings},
+        "capture_warnings": capture_warnings,
+        "poses": prepared.summary(),
         "output": str(out.resolve()),
         **result.stats,
         "tile_details": [t.to_dict() for t in result.tiles],
