@@ -1,13 +1,15 @@
-"""Capture operators: import a capture, estimate its camera poses. Thin: logic is in vortx_blender."""
+"""Capture operators: import a capture, estimate or refine its camera poses, set its scale. Thin: logic
+is in vortx_blender."""
 
 # No `from __future__ import annotations`: bpy reads the property annotations as objects.
 import bpy
-from bpy.props import BoolProperty, StringProperty
+from bpy.props import BoolProperty, FloatProperty, StringProperty
 
-from ..engine.errors import CaptureError
+from ..engine.errors import CaptureError, PoseError
+from ..vortx_blender.cameras import move_capture_cameras, posed_capture_from_scene
 from ..vortx_blender.capture import (
     ImportedCapture,
-    apply_capture,
+    apply_prepared,
     import_capture_job,
     loaded_capture,
     remember_loaded_capture,
@@ -16,7 +18,9 @@ from ..vortx_blender.capture import (
 )
 from ..vortx_blender.job_operator import JobOperatorMixin
 from ..vortx_blender.jobs import JobFunction
-from ..vortx_blender.poses import PosedCapture, PoseSettings, estimate_poses_job
+from ..vortx_blender.point_cloud import apply_point_cloud, checked_points, find_point_cloud
+from ..vortx_blender.poses import PosedCapture, PoseSettings, RefinedPoses, estimate_poses_job, refine_poses_job
+from ..vortx_blender.scale import picked_points, set_scale
 
 # Files a capture can be chosen by; a folder is chosen by accepting the browser with no file selected.
 CAPTURE_FILE_GLOB = "*.json;*.txt;*.mp4;*.mov;*.m4v;*.avi;*.mkv;*.webm"
@@ -56,7 +60,7 @@ class VORTX_OT_import_capture(JobOperatorMixin, bpy.types.Operator):
 
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: ImportedCapture) -> set[str]:
         prepared = result.prepared
-        applied = apply_capture(scene, prepared.capture, self._path, pose_status=prepared.pose_status())
+        applied = apply_prepared(scene, prepared, self._path)
         remember_loaded_capture(scene, self._path, result.loaded)
         for line in prepared.report_lines:
             print(line)
@@ -87,7 +91,7 @@ class VORTX_OT_estimate_poses(JobOperatorMixin, bpy.types.Operator):
         return estimate_poses_job(settings, loaded_capture(context.scene, settings.capture_path))
 
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: PosedCapture) -> set[str]:
-        applied = apply_capture(scene, result.capture, result.capture_path, pose_status=result.pose_status())
+        applied = apply_prepared(scene, result.prepared, result.capture_path)
         remember_loaded_capture(scene, result.capture_path, result.loaded)
         if result.report:
             print(result.report)  # the full SfM report (per-image registration, errors) for the console
@@ -95,4 +99,69 @@ class VORTX_OT_estimate_poses(JobOperatorMixin, bpy.types.Operator):
         return {"FINISHED"}
 
 
-classes = (VORTX_OT_import_capture, VORTX_OT_estimate_poses)
+def _has_capture_cameras(cls: type, context: bpy.types.Context) -> bool:
+    if not context.scene.vortx.posed_frame_count:
+        cls.poll_message_set("Import a capture with poses or run Estimate Poses first")
+        return False
+    return True
+
+
+class VORTX_OT_refine_poses(JobOperatorMixin, bpy.types.Operator):
+    """Refine the capture cameras' poses against the photos (given poses from trackers and apps are often a little off); Esc cancels"""
+
+    bl_idname = "vortx.refine_poses"
+    bl_label = "Refine Poses"
+    bl_options = {"REGISTER", "UNDO"}
+    job_title = "Refine Poses"
+
+    @classmethod
+    def poll(cls, context: bpy.types.Context) -> bool:
+        return super().poll(context) and _has_capture_cameras(cls, context)
+
+    def make_job_function(self, context: bpy.types.Context) -> JobFunction:
+        capture = posed_capture_from_scene(context.scene)
+        if capture is None or not capture.posed_frames:
+            raise PoseError("Refine Poses needs the capture's cameras: import a capture with poses first")
+        return refine_poses_job(capture)
+
+    def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: RefinedPoses) -> set[str]:
+        refined = result.result
+        move_capture_cameras(scene, [f.pose for f in refined.capture.posed_frames])
+        if find_point_cloud(scene) is None and len(refined.points):
+            apply_point_cloud(scene, *checked_points(refined.points, refined.point_colors))
+        settings = scene.vortx
+        if "refined" not in settings.pose_status:
+            settings.pose_status = f"{settings.pose_status}, refined"
+        print(refined.report)
+        _report_applied(self, result.summary(), result.frame_warnings() + list(refined.warnings))
+        return {"FINISHED"}
+
+
+class VORTX_OT_set_scale(bpy.types.Operator):
+    """Scale the capture (cameras, sparse points) and any result so that two picked points are a known distance apart: select two capture cameras (Object Mode) or two vertices of the result or the sparse points (Edit Mode)"""
+
+    bl_idname = "vortx.set_scale"
+    bl_label = "Set Scale"
+    bl_options = {"REGISTER", "UNDO"}
+
+    distance: FloatProperty(name="Distance", description="The real distance between the two picked points",
+                            default=1.0, subtype="DISTANCE", unit="LENGTH", soft_min=0.01, step=1, precision=3)
+
+    @classmethod
+    def poll(cls, context: bpy.types.Context) -> bool:
+        return context.scene is not None and _has_capture_cameras(cls, context)
+
+    def invoke(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
+        return context.window_manager.invoke_props_dialog(self)
+
+    def execute(self, context: bpy.types.Context) -> set[str]:
+        try:
+            change = set_scale(context.scene, picked_points(context), float(self.distance))
+        except PoseError as error:
+            self.report({"ERROR"}, str(error))
+            return {"CANCELLED"}
+        self.report({"INFO"}, change.description)
+        return {"FINISHED"}
+
+
+classes = (VORTX_OT_import_capture, VORTX_OT_estimate_poses, VORTX_OT_refine_poses, VORTX_OT_set_scale)

@@ -78,7 +78,7 @@ def test_capture_panel_before_and_after_import(blender, empty_scene) -> None:
 
     calls = _draw("VORTX_PT_capture", bpy.context)
     operators = [c[1]["operator"] for c in calls if c[0] == "operator"]
-    assert operators == ["vortx.import_capture", "vortx.estimate_poses"]
+    assert operators == ["vortx.import_capture", "vortx.estimate_poses", "vortx.refine_poses", "vortx.set_scale"]
     assert any(c[0] == "label" and c[1].get("text") == "No capture imported" for c in calls)
 
     settings = empty_scene.vortx
@@ -89,6 +89,32 @@ def test_capture_panel_before_and_after_import(blender, empty_scene) -> None:
     texts = [c[1].get("text") for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
     for expected in ("living-room", "transforms", "60", "1920 x 1080", "All 60 posed (transforms)"):
         assert expected in texts, (expected, texts)
+
+
+def test_capture_panel_shows_the_scale_source_and_skipped_photos(blender, empty_scene) -> None:
+    import bpy
+
+    settings = empty_scene.vortx
+    settings.capture_path = "/captures/kitchen/"
+    settings.frame_count, settings.posed_frame_count, settings.poses_metric = 12, 12, False
+    settings.scale_source = "unknown"
+    settings.scale_description = "no floor found in the sparse points (no points below the cameras): scale unknown, SfM units kept"
+    settings.skipped_count, settings.skipped_names = 2, "IMG_0003.jpg, IMG_0007.jpg"
+    labels = [c[1] for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
+    texts = [label.get("text") for label in labels]
+    assert "arbitrary (unknown)" in texts
+    shown = " ".join(t for t in texts if t)
+    assert "no floor found in the sparse points" in shown and "scale unknown" in shown
+    assert "2 photo(s) skipped: IMG_0003.jpg, IMG_0007.jpg" in shown
+    assert [label.get("icon") for label in labels if (label.get("text") or "").startswith(("no floor", "2 photo"))] == ["ERROR", "ERROR"]
+
+    settings.poses_metric, settings.scale_source = True, "camera height"
+    settings.scale_description = "floor plane from 800 points (RANSAC inliers 60 %), median camera height 1.2 units -> scaled x1.25 to 1.5 m"
+    settings.skipped_count = 0
+    texts = [c[1].get("text") for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
+    assert "metres (camera height)" in texts
+    assert any(t and t.startswith("floor plane from 800 points") for t in texts)
+    assert not any(t and "skipped" in t for t in texts)
 
 
 def test_capture_panel_shows_running_job(blender, empty_scene) -> None:

@@ -6,6 +6,7 @@ layout code with a recording stand-in for UILayout (there is no region to draw i
 
 from __future__ import annotations
 
+import textwrap
 from typing import Any, Optional
 
 import bpy
@@ -28,6 +29,21 @@ def _value_row(layout: Any, label: str, value: str) -> None:
     split.label(text=value)
 
 
+WRAP_CHARS = 44  # characters per line of wrapped panel text (the sidebar's default width)
+
+
+def scale_text(settings: Any) -> str:
+    """The scale row: metres or not, and what set it."""
+    units = "metres" if settings.poses_metric else "arbitrary"
+    return f"{units} ({settings.scale_source})" if settings.scale_source else units
+
+
+def _wrapped(layout: Any, text: str, icon: str) -> None:
+    lines = textwrap.wrap(text, WRAP_CHARS) or [""]
+    for index, line in enumerate(lines):
+        layout.label(text=line, icon=icon if index == 0 else "BLANK1")
+
+
 def draw_capture(layout: Any, settings: Any, job: Optional[Job]) -> None:
     layout.operator("vortx.import_capture", icon="FILE_FOLDER")
     if settings.capture_path:
@@ -39,10 +55,20 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job]) -> None:
         _value_row(col, "Resolution", f"{settings.resolution_x} x {settings.resolution_y}")
         _value_row(col, "Poses", settings.pose_status)
         if settings.posed_frame_count:
-            _value_row(col, "Scale", "metres" if settings.poses_metric else "arbitrary")
+            _value_row(col, "Scale", scale_text(settings))
+            if settings.scale_description:
+                # The description is long (floor plane found or not, the numbers): the tooltip-free
+                # panel shows it wrapped on its own lines, with a warning icon when it is a guess.
+                icon = "ERROR" if settings.scale_source in ("unknown", "") or "no floor" in settings.scale_description else "INFO"
+                _wrapped(col, settings.scale_description, icon)
+        if settings.skipped_count:
+            _wrapped(col, f"{settings.skipped_count} photo(s) skipped: {settings.skipped_names}", "ERROR")
     else:
         layout.label(text="No capture imported", icon="INFO")
-    layout.operator("vortx.estimate_poses", icon="CAMERA_DATA")
+    row = layout.row(align=True)
+    row.operator("vortx.estimate_poses", icon="CAMERA_DATA")
+    row.operator("vortx.refine_poses", icon="ORIENTATION_GIMBAL")
+    layout.operator("vortx.set_scale", icon="DRIVER_DISTANCE")
     if job is not None and job.title not in RECONSTRUCTION_JOBS:
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
 

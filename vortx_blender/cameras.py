@@ -267,6 +267,24 @@ def apply_camera_plan(scene: "bpy.types.Scene", plan: CameraPlan) -> list["bpy.t
     return objects
 
 
+def capture_cameras(scene: "bpy.types.Scene") -> list["bpy.types.Object"]:
+    """The scene's capture cameras in frame order (the order of `posed_capture_from_scene`'s frames)."""
+    collection = find_capture_collection(scene)
+    if collection is None:
+        return []
+    return sorted((o for o in collection.objects if is_capture_camera(o)), key=lambda o: int(o[PROP_FRAME]))
+
+
+def move_capture_cameras(scene: "bpy.types.Scene", poses: list[np.ndarray]) -> None:
+    """Give the capture cameras (frame order) new camera-to-world `poses` (4, 4), keeping the objects
+    (their names, selection and anything the user attached to them)."""
+    from mathutils import Matrix
+
+    for obj, pose in zip(capture_cameras(scene), poses, strict=True):
+        obj[PROP_POSE] = np.asarray(pose, dtype=np.float64).ravel().tolist()
+        obj.matrix_world = Matrix(blender_matrix_from_pose(pose).tolist())
+
+
 def build_capture_cameras(scene: "bpy.types.Scene", capture: Capture) -> tuple[list["bpy.types.Object"], list[str]]:
     """Validate, then create one camera per posed frame. Returns (camera objects, warnings)."""
     plan = plan_capture_cameras(capture)
@@ -277,12 +295,10 @@ def posed_capture_from_scene(scene: "bpy.types.Scene") -> Optional[Capture]:
     """The posed frames of the scene's capture, rebuilt exactly from the camera objects' stored data.
 
     The stored float64 K and pose are used rather than the cameras' transforms, which are float32 and
-    would be moved by accident as often as on purpose. Returns None when there are no capture cameras.
+    would be moved by accident as often as on purpose. The sparse points come from the point cloud
+    object, when there is one. Returns None when there are no capture cameras.
     """
-    collection = find_capture_collection(scene)
-    if collection is None:
-        return None
-    objects = sorted((o for o in collection.objects if is_capture_camera(o)), key=lambda o: int(o[PROP_FRAME]))
+    objects = capture_cameras(scene)
     if not objects:
         return None
     frames = []
@@ -300,10 +316,14 @@ def posed_capture_from_scene(scene: "bpy.types.Scene") -> Optional[Capture]:
             )
         )
     settings = scene.vortx
-    return Capture(
+    capture = Capture(
         root=Path(settings.capture_path),
         format=settings.capture_format,
         frames=frames,
         metric=bool(settings.poses_metric),
     )
+    from .point_cloud import scene_points  # point_cloud builds on this module
+
+    points, colours = scene_points(scene)
+    return capture if points is None else capture.with_points(points, colours)
 

@@ -1,4 +1,5 @@
-"""Putting a Capture into a scene: the capture summary on `scene.vortx` plus one camera per posed frame.
+"""Putting a Capture into a scene: the capture summary on `scene.vortx`, one camera per posed frame and
+the sparse points (`point_cloud.py`) when the capture has them.
 
 Both operators (import, estimate poses) end here. Everything that can fail (the engine, validating
 intrinsics and poses) happens before the first write, so a failure leaves the scene unchanged.
@@ -22,6 +23,7 @@ from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.poses.prepare import SFM_NEVER, PreparedCapture, prepare_capture
 from .cameras import apply_camera_plan, plan_capture_cameras
 from .jobs import JobFunction
+from .point_cloud import apply_point_cloud, checked_points
 from .properties import capture_summary, write_summary
 
 if TYPE_CHECKING:
@@ -57,16 +59,27 @@ def resolve_capture_path(filepath: str, directory: str = "") -> Optional[Path]:
     return Path(bpy.path.abspath(chosen)) if chosen else None
 
 
-def apply_capture(scene: "bpy.types.Scene", capture: Capture, path: os.PathLike | str, pose_status: Optional[str] = None) -> CaptureApplied:
-    """Replace the scene's capture summary and capture cameras with `capture`'s.
+def apply_capture(scene: "bpy.types.Scene", capture: Capture, path: os.PathLike | str, pose_status: Optional[str] = None,
+                  scale_source: str = "", scale_description: str = "") -> CaptureApplied:
+    """Replace the scene's capture summary, capture cameras and sparse points with `capture`'s.
 
     Raises CaptureError / PoseError (from validation) before changing anything.
     """
-    summary = capture_summary(capture, str(path), pose_status)
+    summary = capture_summary(capture, str(path), pose_status, scale_source, scale_description)
     plan = plan_capture_cameras(capture)
+    points, colours = checked_points(capture.points, capture.point_colors)
     cameras = apply_camera_plan(scene, plan)
+    apply_point_cloud(scene, points, colours)
     write_summary(scene.vortx, summary)
     return CaptureApplied(cameras=cameras, warnings=list(capture.warnings) + plan.warnings)
+
+
+def apply_prepared(scene: "bpy.types.Scene", prepared: PreparedCapture, path: os.PathLike | str) -> CaptureApplied:
+    """`apply_capture` for a prepared capture: its pose status, where its scale came from, and its
+    sparse points (SfM's, the refinement's or the capture's own, moved to the prepared world)."""
+    capture = prepared.capture.with_points(prepared.points, prepared.point_colors)
+    return apply_capture(scene, capture, path, pose_status=prepared.pose_status(),
+                         scale_source=prepared.scale_source, scale_description=prepared.description)
 
 
 def scene_camera_height(settings: object) -> float:

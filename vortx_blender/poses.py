@@ -1,4 +1,7 @@
-"""The Estimate Poses job: structure from motion, gravity and scale, as a bpy-free job function.
+"""The Estimate Poses and Refine Poses jobs, as bpy-free job functions.
+
+Estimate Poses: structure from motion, gravity and scale. Refine Poses: the given poses (tracker,
+ARKit, SLAM) refined against the photos, in the world they are in (`engine.poses.refine_poses`).
 
 The settings are copied out of `scene.vortx` on the main thread (`PoseSettings.from_scene`), because
 the worker thread must never read Blender data. The capture is the one Import Capture loaded, when
@@ -9,13 +12,17 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 from ..engine.capture import Capture
 from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.poses.prepare import SFM_ALWAYS, PreparedCapture, prepare_capture
+from ..engine.poses.refine import STATUS_REFINED
 from .capture import scene_camera_height
 from .jobs import JobFunction
+
+if TYPE_CHECKING:
+    from ..engine.poses import RefineOptions, RefineResult
 
 
 @dataclass(frozen=True)
@@ -77,5 +84,38 @@ def estimate_poses_job(settings: PoseSettings, loaded: Optional[Capture] = None)
         prepared = prepare_capture(capture, camera_height=settings.camera_height, sfm=SFM_ALWAYS, sfm_options=options,
                                    progress=progress, cancel=cancel)
         return PosedCapture(prepared=prepared, capture_path=settings.capture_path, loaded=capture)
+
+    return run
+
+
+@dataclass(frozen=True)
+class RefinedPoses:
+    result: "RefineResult"
+
+    def summary(self) -> str:
+        """One line for the report: how many frames moved and by how much (median / max)."""
+        r = self.result
+        return (f"Refined {len(r.refined)} of {len(r.changes)} posed frames: rotation changed by "
+                f"{r.rotation_deg_median:.2f} deg median, {r.rotation_deg_max:.2f} deg max; position by "
+                f"{_length(r.translation_median, r.units)} median, {_length(r.translation_max, r.units)} max")
+
+    def frame_warnings(self) -> list[str]:
+        """One warning per frame that kept its given pose: refused (it moved too far) or not refined."""
+        return [f"{change.name} {change.status} ({change.reason}); it keeps its given pose"
+                for change in self.result.changes if change.status != STATUS_REFINED]
+
+
+def _length(value: float, units: str) -> str:
+    return f"{100 * value:.1f} cm" if units == "m" else f"{value:.3g} {units}"
+
+
+def refine_poses_job(capture: Capture, options: Optional["RefineOptions"] = None) -> JobFunction:
+    """A job function refining the posed frames of `capture` (rebuilt from the scene's cameras on the
+    main thread) against its photos with pycolmap (`engine.poses.refine_poses`, in a subprocess)."""
+
+    def run(progress: ProgressCallback, cancel: CancelToken) -> RefinedPoses:
+        from ..engine.poses import refine_poses
+
+        return RefinedPoses(refine_poses(capture, options, progress=progress, cancel=cancel))
 
     return run

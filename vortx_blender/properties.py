@@ -131,6 +131,13 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
         description="Camera positions are in metres (from the capture format or scaled by the camera height)",
     )
     pose_status: StringProperty(name="Poses", description="Where the camera poses come from, or what is missing")
+    scale_source: StringProperty(
+        name="Scale Source",
+        description="What set the size of the world: camera height (over the floor found), known distance (Set Scale), metric capture, unknown",
+    )
+    scale_description: StringProperty(name="Scale", description="How the scale was found, with the numbers behind it (floor plane found or not)")
+    skipped_count: IntProperty(name="Skipped Photos", description="Photos left out of the capture because they cannot be used", min=0)
+    skipped_names: StringProperty(name="Skipped", description="The first photos left out (the import report names all of them and why)")
 
     # --- reconstruction settings ---
     show_tiles: BoolProperty(
@@ -243,7 +250,11 @@ def _add_recon_properties(cls: type) -> None:
 _add_recon_properties(VortxSceneSettings)
 
 
-def capture_summary(capture: "Capture", path: str, pose_status: str | None = None) -> dict[str, object]:
+SKIPPED_NAMES_SHOWN = 3  # the panel names this many skipped photos; the report names all
+
+
+def capture_summary(capture: "Capture", path: str, pose_status: str | None = None, scale_source: str = "",
+                    scale_description: str = "") -> dict[str, object]:
     """The scene.vortx summary values describing `capture`, without touching Blender data.
 
     Computed before anything is written so that a failure in between cannot leave a half-updated
@@ -268,6 +279,11 @@ def capture_summary(capture: "Capture", path: str, pose_status: str | None = Non
         "resolution_y": int(height),
         "poses_metric": bool(capture.metric) and posed > 0,
         "pose_status": pose_status,
+        "scale_source": scale_source if posed else "",
+        "scale_description": scale_description if posed else "",
+        "skipped_count": len(capture.skipped),
+        "skipped_names": ", ".join(capture.skipped[:SKIPPED_NAMES_SHOWN])
+        + (f" and {len(capture.skipped) - SKIPPED_NAMES_SHOWN} more" if len(capture.skipped) > SKIPPED_NAMES_SHOWN else ""),
     }
 
 

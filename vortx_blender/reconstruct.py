@@ -22,7 +22,7 @@ from ..engine.meshops import PieceStats, remove_small_pieces
 from ..engine.poses.prepare import SFM_NEVER, prepare_capture
 from ..engine.recon.settings import BLENDER, ReconSettings, setting_fields, value_type
 from .cameras import posed_capture_from_scene
-from .capture import apply_capture, scene_camera_height
+from .capture import apply_prepared, scene_camera_height
 from .jobs import JobFunction
 from .properties import blender_name
 from .result import Provenance
@@ -167,7 +167,10 @@ def scene_capture(scene: "bpy.types.Scene") -> Capture:
     prepared = prepare_capture(capture, camera_height=scene_camera_height(scene.vortx), sfm=SFM_NEVER)
     if prepared.moved():
         print(f"VoRTX: capture cameras moved to the reconstruction world: {prepared.description}")
-        apply_capture(scene, prepared.capture, scene.vortx.capture_path, pose_status=prepared.pose_status())
+        settings = scene.vortx
+        skipped = (settings.skipped_count, settings.skipped_names)  # the cameras do not carry them
+        apply_prepared(scene, prepared, settings.capture_path)
+        settings.skipped_count, settings.skipped_names = skipped
     return prepared.capture
 
 

@@ -153,7 +153,7 @@ def prepare_capture(
             prepared.notes.append("no frame has a pose, so there is nothing to refine")
         return prepared
     refinement = None
-    points = colors = None
+    points, colors = capture.points, capture.point_colors  # the capture's own (a COLMAP model's points3D)
     if refine:
         from . import refine_poses  # at call time, so tests can stand in for `engine.poses.refine_poses`
 
@@ -161,11 +161,13 @@ def prepare_capture(
         capture = refinement.capture
         if len(refinement.points):
             points, colors = refinement.points, refinement.point_colors
-    # The refinement's triangulated points let the alignment find the floor of a non-metric capture.
+    # The sparse points (the capture's own, or the refinement's triangulated ones) let the alignment
+    # find the floor of a non-metric capture; they move with the poses.
     alignment = align_gravity_and_scale(capture, camera_height=camera_height, known_distance=known_distance,
                                         points=points)
     warnings = (list(refinement.warnings) if refinement is not None else []) + list(alignment.warnings)
-    return PreparedCapture(alignment.capture, alignment.scale_source, alignment.description, warnings,
+    aligned = alignment.capture.with_points(alignment.points, colors)
+    return PreparedCapture(aligned, alignment.scale_source, alignment.description, warnings,
                            similarity=alignment.similarity, refinement=refinement, points=alignment.points,
                            point_colors=colors)
 
@@ -208,5 +210,6 @@ def _with_sfm(
     result = estimate_poses(capture, options, progress=progress, cancel=cancel)
     alignment = result.alignment
     assert alignment is not None  # align=True above
-    return PreparedCapture(result.capture, alignment.scale_source, alignment.description, list(result.warnings), sfm=result,
+    capture = result.capture.with_points(result.points, result.point_colors)  # not the given capture's old points
+    return PreparedCapture(capture, alignment.scale_source, alignment.description, list(result.warnings), sfm=result,
                            points=result.points, point_colors=result.point_colors)
