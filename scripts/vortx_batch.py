@@ -62,6 +62,8 @@ def parse_arguments(args: Sequence[str]) -> argparse.Namespace:
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="camera height above the floor in metres; scales poses that are not metric (default %(default)s)")
     parser.add_argument("--skip-poses", action="store_true", help="never run structure from motion; fail if no frame has a pose")
+    parser.add_argument("--refine-poses", action="store_true",
+                        help="refine the capture's given poses against the photos (Blender's Refine Poses) before reconstructing")
     args = parser.parse_args(list(args))
     if args.out.suffix.lower() != ".blend":
         parser.error(f"--out {args.out}: the output must be a .blend file")
@@ -153,7 +155,8 @@ def run(args: argparse.Namespace, addon: ModuleType) -> None:
         f"{settings.posed_frame_count} posed, {settings.resolution_x}x{settings.resolution_y}", started)
 
     started = time.perf_counter()
-    if settings.posed_frame_count == 0:
+    estimated = settings.posed_frame_count == 0
+    if estimated:
         if args.skip_poses:
             raise BatchError(f"no frame of {args.capture} has a camera pose and --skip-poses was given")
         run_operator("Estimate Poses", bpy.ops.vortx.estimate_poses)
@@ -164,6 +167,10 @@ def run(args: argparse.Namespace, addon: ModuleType) -> None:
         detail = f"{settings.pose_status}; the {settings.frame_count - settings.posed_frame_count} frames without a pose are left out"
     else:
         detail = settings.pose_status
+    if args.refine_poses and not estimated:
+        # Poses SfM just estimated are already bundle-adjusted; given poses are refined here.
+        run_operator("Refine Poses", bpy.ops.vortx.refine_poses)
+        detail = f"{settings.pose_status}; refined against the photos"
     say(2, steps, "poses", detail, started)
 
     started = time.perf_counter()
