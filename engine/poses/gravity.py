@@ -7,14 +7,14 @@ gravity along -Z, so we
    good first gravity estimate; tilts up and down cancel out in the mean;
 2. find the floor as a plane in the sparse points below the cameras (RANSAC along gravity,
    `floor.py`); when the plane is well supported its normal refines gravity. The median camera
-   height above it, set equal to `camera_height` (a hand-held phone is ~1.5 m up), gives the
+   height above it, set equal to `camera_height` (`camera_height.py`: a hand-held phone), gives the
    scale, unless a known distance between two cameras or two 3D points is given;
    when no floor plane is found, the lowest points (a low percentile of the heights) stand in
    for the floor and the report says so; with no points below the cameras the scale is unknown;
 3. translate so the floor is at z = 0, which puts the room on Blender's ground plane.
 
 Public API (also used by Blender's Set Scale and the CLI's `--known-distance`):
-- `align_gravity_and_scale(capture, camera_height=1.5, known_distance=None, points=None,
+- `align_gravity_and_scale(capture, camera_height=DEFAULT_CAMERA_HEIGHT_M, known_distance=None, points=None,
   align_metric=False) -> Alignment` (fields: capture, similarity, points, scale_source,
   description, warnings, floor, floor_method, camera_height_units);
 - `KnownDistance(a, b, metres)`: each end a frame's file name (its camera centre) or a 3D point
@@ -36,6 +36,7 @@ import numpy as np
 from ..capture.model import Capture, Frame
 from ..errors import PoseError
 from .align import Similarity
+from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .floor import GRAVITY_MIN_INLIERS, MIN_FLOOR_POINTS, FloorPlane, find_floor_plane
 
 FLOOR_PERCENTILE = 2.0  # fallback floor: this percentile of the heights below the cameras
@@ -180,7 +181,7 @@ def _frame_centre(capture: Capture, name: str) -> np.ndarray:
 
 def align_gravity_and_scale(
     capture: Capture,
-    camera_height: float = 1.5,
+    camera_height: float = DEFAULT_CAMERA_HEIGHT_M,
     known_distance: Optional[KnownDistance] = None,
     points: Optional[np.ndarray] = None,
     align_metric: bool = False,

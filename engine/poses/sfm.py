@@ -35,6 +35,7 @@ from ..capture.naming import name_list
 from ..capture.undistort import undistort_images
 from ..errors import PoseError
 from ..jobs import CancelToken, ProgressCallback, check
+from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .gravity import Alignment, KnownDistance, align_gravity_and_scale
 from .process import run_worker, worker_command
 from .quality import quality_warnings, radial_corner_shift, significant_distortion
@@ -61,7 +62,7 @@ class SfmOptions:
     max_num_features: int = 8192  # SIFT features per photo
     num_threads: int = -1  # -1: all cores
     align: bool = True  # gravity (+Z up), floor at z = 0 and metric scale after SfM
-    camera_height: float = 1.5  # metres above the floor, for the scale when no known distance is given
+    camera_height: float = DEFAULT_CAMERA_HEIGHT_M  # metres above the floor, for the scale when no known distance is given
     known_distance: Optional[KnownDistance] = None
     work_dir: Optional[Path] = None  # keep the worker's files (database, models, log) here; default: temp, deleted
 
