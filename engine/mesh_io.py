@@ -2,13 +2,14 @@
 
 One small module shared by the whole engine, so every mesh file we write (ground truth, predictions,
 exports) is read back the same way. Only what a triangle mesh needs is kept: vertex positions,
-triangles, optional per-vertex normals and colours. Polygons with more than three corners are
-fan-triangulated on read.
+triangles, optional per-vertex normals and colours, and named per-vertex float attributes (e.g. how
+well each vertex was observed, engine/stereo/vertex_evidence.py), stored in PLY as extra float vertex
+properties. Polygons with more than three corners are fan-triangulated on read.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import BinaryIO, Optional, Union
 
@@ -30,13 +31,22 @@ class Mesh:
     """A triangle mesh in world metres.
 
     vertices (V, 3) float32; faces (F, 3) int32 (indices into vertices); normals (V, 3) float32 or
-    None; colors (V, 3) float32 in 0..1 or None.
+    None; colors (V, 3) float32 in 0..1 or None; attributes: name -> (V,) float32 per-vertex values
+    (PLY keeps them as float vertex properties; OBJ has no place for them).
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     normals: Optional[np.ndarray] = None
     colors: Optional[np.ndarray] = None
+    attributes: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+# Vertex properties with a fixed meaning; every other scalar vertex property is read as an attribute.
+_POSITION_NAMES = ("x", "y", "z")
+_NORMAL_NAMES = ("nx", "ny", "nz")
+_COLOUR_NAMES = (("red", "green", "blue"), ("r", "g", "b"), ("diffuse_red", "diffuse_green", "diffuse_blue"))
+_RESERVED_NAMES = frozenset(_POSITION_NAMES + _NORMAL_NAMES + sum(_COLOUR_NAMES, ()) + ("alpha",))
 
 
 @dataclass
@@ -62,12 +72,14 @@ def write_ply(
     faces: Optional[np.ndarray] = None,
     normals: Optional[np.ndarray] = None,
     colors: Optional[np.ndarray] = None,
+    attributes: Optional[dict[str, np.ndarray]] = None,
 ) -> None:
     """Write a binary little-endian PLY.
 
     vertices (V, 3); faces (F, 3) or None for a point cloud; normals (V, 3) or None;
-    colors (V, 3) as float 0..1 or uint8 0..255, or None. Positions and normals are stored as float32,
-    colours as uchar red/green/blue, faces as `list uchar int vertex_indices`.
+    colors (V, 3) as float 0..1 or uint8 0..255, or None; attributes: name -> (V,) values, or None.
+    Positions, normals and attributes are stored as float32, colours as uchar red/green/blue, faces
+    as `list uchar int vertex_indices`.
     """
     vertices = np.asarray(vertices, dtype=np.float32).reshape(-1, 3)
     n_vertices = len(vertices)
@@ -80,6 +92,8 @@ def write_ply(
         colors = _colors_to_uint8(colors)
         _check_rows("colors", colors, n_vertices)
         fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    attributes = _checked_attributes(attributes or {}, n_vertices)
+    fields += [(name, "<f4") for name in attributes]
 
     vertex_data = np.empty(n_vertices, dtype=np.dtype(fields))
     for axis, name in enumerate("xyz"):
@@ -90,6 +104,8 @@ def write_ply(
     if colors is not None:
         for axis, name in enumerate(("red", "green", "blue")):
             vertex_data[name] = colors[:, axis]
+    for name, values in attributes.items():
+        vertex_data[name] = values
 
     header = ["ply", "format binary_little_endian 1.0", "comment written by VoRTX for Blender",
               f"element vertex {n_vertices}", "property float x", "property float y", "property float z"]
@@ -97,6 +113,7 @@ def write_ply(
         header += ["property float nx", "property float ny", "property float nz"]
     if colors is not None:
         header += ["property uchar red", "property uchar green", "property uchar blue"]
+    header += [f"property float {name}" for name in attributes]
 
     face_data = None
     if faces is not None:
@@ -159,6 +176,19 @@ def _colors_to_uint8(colors: np.ndarray) -> np.ndarray:
     return np.clip(np.round(colors.astype(np.float64) * 255.0), 0, 255).astype(np.uint8)
 
 
+def _checked_attributes(attributes: dict[str, np.ndarray], n_vertices: int) -> dict[str, np.ndarray]:
+    """name -> (V,) float32, after checking each name is a PLY word that means nothing else."""
+    checked = {}
+    for name, values in attributes.items():
+        if not name or not all(c.isalnum() or c == "_" for c in name) or name in _RESERVED_NAMES:
+            raise ValueError(f"vertex attribute name {name!r} must be letters, digits and '_' and not one of "
+                             f"the PLY's own properties ({', '.join(sorted(_RESERVED_NAMES))})")
+        values = np.asarray(values, dtype=np.float32).reshape(-1)
+        _check_rows(f"attribute {name!r}", values, n_vertices)
+        checked[name] = values
+    return checked
+
+
 def _check_rows(name: str, array: np.ndarray, n: int) -> None:
     if len(array) != n:
         raise ValueError(f"{name} has {len(array)} rows but there are {n} vertices")
@@ -171,7 +201,8 @@ def read_ply(path: PathLike) -> Mesh:
     """Read a PLY (ascii, binary_little_endian or binary_big_endian) into a `Mesh`.
 
     Faces may be any polygons (fan-triangulated); a point cloud gives faces of shape (0, 3).
-    Colours are found as red/green/blue (or r/g/b, diffuse_*) and scaled to 0..1 when integer.
+    Colours are found as red/green/blue (or r/g/b, diffuse_*) and scaled to 0..1 when integer; every
+    other scalar vertex property becomes a float32 attribute of that name.
     """
     path = Path(path)
     with open(path, "rb") as f:
@@ -186,19 +217,21 @@ def read_ply(path: PathLike) -> Mesh:
     vertex = data.get("vertex")
     if vertex is None:
         raise ValueError(f"{path}: no 'vertex' element")
-    vertices = np.stack([vertex[k] for k in ("x", "y", "z")], axis=1).astype(np.float32)
+    vertices = np.stack([vertex[k] for k in _POSITION_NAMES], axis=1).astype(np.float32)
     normals = None
-    if all(k in vertex for k in ("nx", "ny", "nz")):
-        normals = np.stack([vertex[k] for k in ("nx", "ny", "nz")], axis=1).astype(np.float32)
+    if all(k in vertex for k in _NORMAL_NAMES):
+        normals = np.stack([vertex[k] for k in _NORMAL_NAMES], axis=1).astype(np.float32)
     colors = None
-    for names in (("red", "green", "blue"), ("r", "g", "b"), ("diffuse_red", "diffuse_green", "diffuse_blue")):
+    for names in _COLOUR_NAMES:
         if all(k in vertex for k in names):
             raw = np.stack([vertex[k] for k in names], axis=1)
             colors = raw.astype(np.float32) / (255.0 if np.issubdtype(raw.dtype, np.integer) else 1.0)
             break
     faces = data.get("face", {}).get("vertex_indices", data.get("face", {}).get("vertex_index"))
     faces = np.zeros((0, 3), np.int32) if faces is None else faces
-    return Mesh(vertices, faces, normals, colors)
+    attributes = {name: np.asarray(values, dtype=np.float32) for name, values in vertex.items()
+                  if name not in _RESERVED_NAMES and np.ndim(values) == 1}
+    return Mesh(vertices, faces, normals, colors, attributes)
 
 
 def _read_header(f: BinaryIO, path: Path) -> tuple[str, list[_Element]]:

@@ -68,7 +68,7 @@ def face_pieces(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.nd
 def keep_faces(mesh: Mesh, keep: np.ndarray) -> Mesh:
     """The mesh with only the faces where `keep` (F,) is True, unused vertices dropped and renumbered.
 
-    Normals and colours follow their vertices; dtypes are kept (float32 / int32 for engine meshes).
+    Normals, colours and attributes follow their vertices; dtypes are kept (float32 / int32 for engine meshes).
     """
     keep = np.asarray(keep, dtype=bool)
     faces = np.asarray(mesh.faces)[keep]
@@ -84,6 +84,7 @@ def keep_faces(mesh: Mesh, keep: np.ndarray) -> Mesh:
         faces=remap[faces].astype(np.asarray(mesh.faces).dtype),
         normals=rows(mesh.normals),
         colors=rows(mesh.colors),
+        attributes={name: rows(values) for name, values in mesh.attributes.items()},
     )
 
 

@@ -1,0 +1,139 @@
+"""How well each mesh vertex was observed: the confidence layer an artist reads to see where to take
+more photos (issue 11.6).
+
+Per vertex, from the stereo depth maps of the run:
+- `observations`: how many depth maps saw the vertex at their depth: it projects into the view in
+  front of the camera, the view has a depth there, and the vertex lies within the TSDF truncation of
+  that depth. A depth much nearer than the vertex means the view was occluded there; one much
+  farther means the view saw through where the vertex is; neither counts.
+- `stereo_confidence`: the mean stereo confidence (aggregated NCC) of those observations, 0 when none.
+- `completed`: 1 where the surface was not observed but completed by the network, 0 where observed.
+  Classical stereo fusion only meshes what depth maps saw, so it is always 0 there; for VoRTX it is 1
+  where no depth map sees the vertex.
+
+The same pixel rule as the TSDF fusion that built the surface (engine/tsdf/integration.py): a camera
+point projects to the pixel that contains K @ x_cam (floor), pixel (0, 0) covering [0, 1)^2.
+"""
+
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import numpy as np
+import torch
+
+from .depth_maps import DepthMap
+
+OBSERVATIONS = "observations"
+STEREO_CONFIDENCE = "stereo_confidence"
+COMPLETED = "completed"
+EVIDENCE_ATTRIBUTES = (OBSERVATIONS, STEREO_CONFIDENCE, COMPLETED)
+
+VERTEX_CHUNK = 1 << 18  # vertices per projection batch: bounds the temporaries to a few MB per map
+MIN_DEPTH = 1e-3  # metres: points nearer the camera plane than this are behind it
+
+# The colour an artist sees: red where few views or weak matches saw the surface, green where it is
+# well observed. A vertex seen by this many depth maps with this confidence counts as fully observed.
+WELL_OBSERVED_VIEWS = 5
+GOOD_CONFIDENCE = 0.8  # aggregated NCC of a clear match (the sweep keeps matches from 0.5)
+LOW_COLOUR = np.array([0.85, 0.10, 0.08], np.float32)  # sRGB red
+MID_COLOUR = np.array([0.95, 0.80, 0.10], np.float32)  # sRGB yellow
+HIGH_COLOUR = np.array([0.10, 0.75, 0.20], np.float32)  # sRGB green
+
+
+def observe_vertices(
+    vertices: np.ndarray,
+    maps: Sequence[DepthMap],
+    truncation: float,
+    device: Optional[torch.device] = None,
+    chunk: int = VERTEX_CHUNK,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(observations (V,) float32, stereo_confidence (V,) float32) of world-space `vertices` (V, 3).
+
+    truncation: metres; a view observes a vertex when |depth at its pixel - its depth| <= truncation
+    (use the TSDF truncation the surface was fused with).
+    """
+    if truncation <= 0:
+        raise ValueError(f"truncation must be positive, got {truncation}")
+    device = torch.device(device) if device is not None else torch.device("cpu")
+    points = torch.as_tensor(np.asarray(vertices, np.float32).reshape(-1, 3), device=device)
+    count = torch.zeros(len(points), dtype=torch.float32, device=device)
+    confidence_sum = torch.zeros(len(points), dtype=torch.float32, device=device)
+    for depth_map in maps:
+        depth = torch.as_tensor(depth_map.depth, dtype=torch.float32, device=device)
+        confidence = torch.as_tensor(depth_map.confidence, dtype=torch.float32, device=device)
+        height, width = depth.shape
+        world_to_cam = np.linalg.inv(np.asarray(depth_map.pose, np.float64))
+        rotation = torch.as_tensor(world_to_cam[:3, :3], dtype=torch.float32, device=device)
+        translation = torch.as_tensor(world_to_cam[:3, 3], dtype=torch.float32, device=device)
+        fx, fy, cx, cy = (float(depth_map.K[0, 0]), float(depth_map.K[1, 1]), float(depth_map.K[0, 2]),
+                          float(depth_map.K[1, 2]))
+        for start in range(0, len(points), chunk):
+            cam = points[start:start + chunk] @ rotation.T + translation  # (n, 3)
+            z = cam[:, 2]
+            front = z > MIN_DEPTH
+            safe_z = torch.where(front, z, torch.ones_like(z))
+            u = torch.floor(fx * cam[:, 0] / safe_z + cx)
+            v = torch.floor(fy * cam[:, 1] / safe_z + cy)
+            inside = front & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+            flat = torch.where(inside, v * width + u, torch.zeros_like(u)).long()
+            seen_depth = depth.reshape(-1)[flat]
+            seen = inside & (seen_depth > 0) & ((seen_depth - z).abs() <= truncation)
+            count[start:start + chunk] += seen.float()
+            confidence_sum[start:start + chunk] += torch.where(seen, confidence.reshape(-1)[flat], torch.zeros_like(z))
+    mean_confidence = torch.where(count > 0, confidence_sum / count.clamp(min=1), torch.zeros_like(count))
+    return count.cpu().numpy(), mean_confidence.cpu().numpy()
+
+
+def vertex_evidence(
+    vertices: np.ndarray,
+    maps: Sequence[DepthMap],
+    truncation: float,
+    network_completes: bool,
+    device: Optional[torch.device] = None,
+) -> dict[str, np.ndarray]:
+    """The evidence attributes of a mesh's vertices (V, 3): name -> (V,) float32 (see module doc).
+
+    network_completes: True for a network's surface (unobserved vertices are `completed`), False for
+    classical fusion, which places surface only where depth maps put it (`completed` is 0).
+    """
+    observations, confidence = observe_vertices(vertices, maps, truncation, device)
+    completed = (observations == 0) if network_completes else np.zeros(len(observations), bool)
+    return {OBSERVATIONS: observations, STEREO_CONFIDENCE: confidence, COMPLETED: completed.astype(np.float32)}
+
+
+def evidence_summary(attributes: dict[str, np.ndarray]) -> dict[str, float]:
+    """Share of vertices seen by none, 1-2 and >= 3 depth maps, the mean confidence of the seen ones and
+    the completed share: the numbers a run's stats report."""
+    observations = np.asarray(attributes[OBSERVATIONS])
+    if len(observations) == 0:
+        return {"unobserved": 0.0, "seen_by_1_2": 0.0, "seen_by_3_plus": 0.0, "confidence_mean": 0.0, "completed": 0.0}
+    seen = observations > 0
+    confidence = np.asarray(attributes[STEREO_CONFIDENCE])
+    return {
+        "unobserved": round(float(np.mean(~seen)), 4),
+        "seen_by_1_2": round(float(np.mean(seen & (observations < 3))), 4),
+        "seen_by_3_plus": round(float(np.mean(observations >= 3)), 4),
+        "confidence_mean": round(float(confidence[seen].mean()) if seen.any() else 0.0, 4),
+        "completed": round(float(np.mean(np.asarray(attributes[COMPLETED]) > 0.5)), 4),
+    }
+
+
+def observation_score(attributes: dict[str, np.ndarray]) -> np.ndarray:
+    """(V,) float32 in [0, 1]: 0 unobserved (or completed), 1 seen by >= WELL_OBSERVED_VIEWS depth maps
+    with confidence >= GOOD_CONFIDENCE; the product of the two shares, so both must be good."""
+    views = np.clip(np.asarray(attributes[OBSERVATIONS], np.float32) / WELL_OBSERVED_VIEWS, 0.0, 1.0)
+    match = np.clip(np.asarray(attributes[STEREO_CONFIDENCE], np.float32) / GOOD_CONFIDENCE, 0.0, 1.0)
+    score = views * match
+    completed = attributes.get(COMPLETED)
+    if completed is not None:
+        score = np.where(np.asarray(completed) > 0.5, 0.0, score)
+    return score.astype(np.float32)
+
+
+def observation_colours(attributes: dict[str, np.ndarray]) -> np.ndarray:
+    """(V, 3) float32 sRGB in 0..1: red (score 0) -> yellow (0.5) -> green (1) of `observation_score`."""
+    score = observation_score(attributes)[:, None]
+    low_half = LOW_COLOUR + (MID_COLOUR - LOW_COLOUR) * np.clip(2 * score, 0, 1)
+    high_half = MID_COLOUR + (HIGH_COLOUR - MID_COLOUR) * np.clip(2 * score - 1, 0, 1)
+    return np.where(score < 0.5, low_half, high_half).astype(np.float32)

@@ -1,0 +1,123 @@
+"""The confidence layer: how many depth maps saw each vertex at their depth, with what confidence, and
+whether the network completed it. A hand-built case: a plane 2 m in front of three cameras, one of which
+has an occluder over part of the plane and one a hole in its depth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine.stereo.depth_maps import DepthMap
+from engine.stereo.vertex_evidence import (
+    COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE, evidence_summary, observation_colours, observation_score,
+    observe_vertices, vertex_evidence,
+)
+
+PLANE_Z = 2.0  # world z of the plane; cameras at z = 0 look along +z (OpenCV axes, identity rotation)
+SIZE = (80, 60)  # (w, h) of each depth map
+K = np.array([[60.0, 0.0, 40.0], [0.0, 60.0, 30.0], [0.0, 0.0, 1.0]])
+TRUNCATION = 0.12
+
+
+def camera(x: float) -> np.ndarray:
+    pose = np.eye(4)
+    pose[0, 3] = x
+    return pose
+
+
+def depth_map(x: float, depth: np.ndarray, confidence: float) -> DepthMap:
+    conf = np.where(depth > 0, confidence, 0.0).astype(np.float32)
+    return DepthMap(0, depth.astype(np.float32), conf, K, camera(x), np.zeros(0, np.int64), (0.5, 5.0))
+
+
+def plane_vertices() -> np.ndarray:
+    """A 9 x 7 grid on the plane within every camera's view; x and y avoid the occluder and hole edges."""
+    xs, ys = np.meshgrid(np.linspace(-0.83, 0.77, 9), np.linspace(-0.63, 0.57, 7))
+    return np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, PLANE_Z)], 1).astype(np.float32)
+
+
+@pytest.fixture
+def three_views():
+    w, h = SIZE
+    full = np.full((h, w), PLANE_Z)
+    seen_by_a = depth_map(-0.1, full, 0.9)
+    # B: a box 1 m from the camera covers the image's left half (world x < 0.1 on the plane).
+    occluded = full.copy()
+    occluded[:, : w // 2] = 1.0
+    seen_by_b = depth_map(0.1, occluded, 0.6)
+    # C: no depth in the image's top half (world y < 0 on the plane): textureless there.
+    holed = full.copy()
+    holed[: h // 2] = 0.0
+    seen_by_c = depth_map(0.0, holed, 0.75)
+    return [seen_by_a, seen_by_b, seen_by_c]
+
+
+def expected(vertices: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Observations and mean confidence from the construction: A sees all, B where x > 0.1, C where y > 0."""
+    in_b = vertices[:, 0] > 0.1
+    in_c = vertices[:, 1] > 0.0
+    count = 1 + in_b.astype(float) + in_c.astype(float)
+    total = 0.9 + 0.6 * in_b + 0.75 * in_c
+    return count, total / count
+
+
+def test_a_plane_seen_by_three_views_one_occluded_one_with_a_hole(three_views) -> None:
+    vertices = plane_vertices()
+    count, confidence = observe_vertices(vertices, three_views, TRUNCATION)
+    want_count, want_confidence = expected(vertices)
+    assert set(np.unique(want_count)) == {1.0, 2.0, 3.0}  # the case covers every combination
+    np.testing.assert_array_equal(count, want_count)
+    np.testing.assert_allclose(confidence, want_confidence, atol=1e-6)
+
+
+def test_chunks_give_the_same_counts(three_views) -> None:
+    vertices = plane_vertices()
+    whole = observe_vertices(vertices, three_views, TRUNCATION)
+    chunked = observe_vertices(vertices, three_views, TRUNCATION, chunk=5)
+    np.testing.assert_array_equal(whole[0], chunked[0])
+    np.testing.assert_allclose(whole[1], chunked[1])
+
+
+def test_only_vertices_at_the_depth_are_observed(three_views) -> None:
+    """Off the plane by more than the truncation (in front: the view saw through it; behind: hidden),
+    outside every view, or behind the cameras: nobody observed it."""
+    points = np.float32([
+        [0.3, 0.3, PLANE_Z - 0.5],  # floating in the free space every view saw through
+        [0.3, 0.3, PLANE_Z + 0.5],  # behind the plane
+        [0.3, 0.3, PLANE_Z - 0.1],  # within the truncation: still observed by all three
+        [9.0, 0.3, PLANE_Z],  # outside every image
+        [0.3, 0.3, -1.0],  # behind the cameras
+    ])
+    count, confidence = observe_vertices(points, three_views, TRUNCATION)
+    np.testing.assert_array_equal(count, [0, 0, 3, 0, 0])
+    np.testing.assert_allclose(confidence, [0, 0, (0.9 + 0.6 + 0.75) / 3, 0, 0], atol=1e-6)
+
+
+def test_completed_only_where_a_network_filled_in_unobserved_surface(three_views) -> None:
+    vertices = np.concatenate([plane_vertices(), np.float32([[0.3, 0.3, PLANE_Z + 0.5]])])
+    network = vertex_evidence(vertices, three_views, TRUNCATION, network_completes=True)
+    fusion = vertex_evidence(vertices, three_views, TRUNCATION, network_completes=False)
+    assert set(network) == {OBSERVATIONS, STEREO_CONFIDENCE, COMPLETED}
+    assert all(a.dtype == np.float32 and a.shape == (len(vertices),) for a in network.values())
+    np.testing.assert_array_equal(network[COMPLETED], (network[OBSERVATIONS] == 0).astype(np.float32))
+    assert network[COMPLETED][-1] == 1 and network[COMPLETED][:-1].sum() == 0
+    assert not fusion[COMPLETED].any()
+    summary = evidence_summary(network)
+    assert summary["unobserved"] == pytest.approx(1 / len(vertices), abs=1e-4)
+    assert summary["completed"] == summary["unobserved"]
+
+
+def test_colours_run_from_red_for_unseen_to_green_for_well_observed() -> None:
+    attributes = {
+        OBSERVATIONS: np.float32([0, 1, 5, 8, 8]),
+        STEREO_CONFIDENCE: np.float32([0, 0.9, 0.9, 0.4, 0.95]),
+        COMPLETED: np.float32([1, 0, 0, 0, 0]),
+    }
+    score = observation_score(attributes)
+    assert score[0] == 0 and score[2] == 1 and score[4] == 1
+    assert 0 < score[1] < score[3] < 1  # one view is worse than many views with weak matches
+    colours = observation_colours(attributes)
+    red, green = colours[0], colours[4]
+    assert red[0] > 0.7 and red[1] < 0.2  # red
+    assert green[1] > 0.7 and green[0] < 0.2  # green
+    assert colours.min() >= 0 and colours.max() <= 1
