@@ -47,23 +47,39 @@ def scene_points(scene: "bpy.types.Scene") -> tuple[Optional[np.ndarray], Option
     obj = find_point_cloud(scene)
     if obj is None:
         return None, None
-    mesh = obj.data
-    if obj.mode == "EDIT":
-        obj.update_from_editmode()
-    local = np.empty(3 * len(mesh.vertices), dtype=np.float32)
-    mesh.vertices.foreach_get("co", local)
-    local = local.reshape(-1, 3).astype(np.float64)
-    matrix = np.array(obj.matrix_world, dtype=np.float64)
-    points = local @ matrix[:3, :3].T + matrix[:3, 3]
-    colours = None
     from .result import COLOUR_ATTRIBUTE, linear_to_srgb
 
-    attribute = mesh.color_attributes.get(COLOUR_ATTRIBUTE)
-    if attribute is not None and len(mesh.vertices):
-        rgba = np.empty(4 * len(mesh.vertices), dtype=np.float32)
-        attribute.data.foreach_get("color", rgba)
-        colours = np.clip(np.round(linear_to_srgb(rgba.reshape(-1, 4)[:, :3]) * 255.0), 0, 255).astype(np.uint8)
+    mesh = obj.data
+    if mesh.is_editmode:  # the edit mesh holds the data then; the Mesh's own arrays are stale or empty
+        local, rgba = _edit_mesh_arrays(mesh, COLOUR_ATTRIBUTE)
+    else:
+        local = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+        mesh.vertices.foreach_get("co", local)
+        local = local.reshape(-1, 3)
+        attribute = mesh.color_attributes.get(COLOUR_ATTRIBUTE)
+        rgba = None
+        if attribute is not None and attribute.domain == "POINT" and len(attribute.data) == len(local):
+            rgba = np.empty(4 * len(local), dtype=np.float32)
+            attribute.data.foreach_get("color", rgba)
+            rgba = rgba.reshape(-1, 4)
+    matrix = np.array(obj.matrix_world, dtype=np.float64)
+    points = local.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
+    colours = None
+    if rgba is not None and len(rgba):
+        colours = np.clip(np.round(linear_to_srgb(rgba[:, :3]) * 255.0), 0, 255).astype(np.uint8)
     return points, colours
+
+
+def _edit_mesh_arrays(mesh: "bpy.types.Mesh", colour_name: str) -> tuple[np.ndarray, Optional[np.ndarray]]:
+    """(positions (N, 3), linear RGBA (N, 4) or None) of a mesh in Edit Mode, from its BMesh."""
+    import bmesh
+
+    bm = bmesh.from_edit_mesh(mesh)
+    local = np.array([vertex.co[:] for vertex in bm.verts], dtype=np.float64).reshape(-1, 3)
+    layer = bm.verts.layers.float_color.get(colour_name)
+    if layer is None:
+        return local, None
+    return local, np.array([vertex[layer][:] for vertex in bm.verts], dtype=np.float32).reshape(-1, 4)
 
 
 def checked_points(points: Optional[np.ndarray], colours: Optional[np.ndarray]) -> tuple[Optional[np.ndarray], Optional[np.ndarray]]:

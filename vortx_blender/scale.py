@@ -130,6 +130,9 @@ def _scale_about_origin(obj: "bpy.types.Object", factor: float) -> None:
     else:
         mesh.transform(Matrix.Scale(factor, 4))
         mesh.update()
-    world = obj.matrix_world.copy()
-    world.translation = world.translation * factor
-    obj.matrix_world = world
+    if obj.parent is None:
+        obj.location = obj.location * factor
+    else:
+        world = obj.matrix_world.copy()
+        world.translation = world.translation * factor
+        obj.matrix_world = world
