@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Optional
 
 # Level 0 is the coarsest. The names are the official checkpoint's ModuleDict keys.
 LEVEL_NAMES: tuple[str, str, str] = ("coarse", "medium", "fine")
@@ -22,6 +22,26 @@ BACKBONES = ("mnasnet", "efficientnet_lite0")
 FUSIONS = ("transformer", "average")
 # Which statistics the 3D CNN's BatchNorms use at inference (see VortxConfig).
 SPARSE_NORM_STATISTICS = ("running", "scene")
+
+
+@dataclass(frozen=True)
+class StereoEvidenceConfig:
+    """Plane-sweep stereo depth as input (engine/model/stereo_evidence.py).
+
+    truncation_voxels: truncation of the per-view signed distance and of the fused TSDF, in voxels of
+                       each level (3: FineRecon's and the ground truth's).
+    view_tokens:       join [signed distance, confidence, valid] with the appearance features in the
+                       view transformer's tokens.
+    Always on with evidence: the fused TSDF as an input channel of every level's 3D CNN, and every
+    level's head a residual on it (zero-initialised last layer: untrained = classical fusion).
+    """
+
+    truncation_voxels: float = 3.0
+    view_tokens: bool = True
+
+    def __post_init__(self) -> None:
+        if self.truncation_voxels <= 0:
+            raise ValueError(f"stereo_evidence.truncation_voxels must be positive, got {self.truncation_voxels}")
 
 
 @dataclass(frozen=True)
@@ -48,6 +68,8 @@ class VortxConfig:
                         the scene's own active voxels at that level, as training normalises with the
                         batch's; for weights whose running averages, gathered on small training crops,
                         do not describe whole scenes (MODEL.md measures it).
+    stereo_evidence:    None (appearance only: the official checkpoint, the v1/v2 weights) or a
+                        StereoEvidenceConfig: the network also takes plane-sweep stereo depth maps.
     """
 
     backbone: str = "efficientnet_lite0"
@@ -62,8 +84,15 @@ class VortxConfig:
     max_train_voxels: tuple[int, int] = (2**14, 2**16)
     image_long_side: int = 640
     sparse_norm_statistics: str = "running"
+    stereo_evidence: Optional[StereoEvidenceConfig] = None
 
     def __post_init__(self) -> None:
+        if isinstance(self.stereo_evidence, dict):  # from JSON
+            known = {f.name for f in dataclasses.fields(StereoEvidenceConfig)}
+            unknown = sorted(set(self.stereo_evidence) - known)
+            if unknown:
+                raise ValueError(f"unknown stereo_evidence fields: {unknown}")
+            object.__setattr__(self, "stereo_evidence", StereoEvidenceConfig(**self.stereo_evidence))
         # Lists arrive from JSON; store tuples so the config stays hashable and comparable.
         for name in ("feature_channels", "unet_base_widths", "max_train_voxels"):
             object.__setattr__(self, name, tuple(int(v) for v in getattr(self, name)))
@@ -83,6 +112,8 @@ class VortxConfig:
             raise ValueError(f"sparse_norm_statistics must be one of {SPARSE_NORM_STATISTICS}, got {self.sparse_norm_statistics!r}")
         if self.voxel_size <= 0:
             raise ValueError("voxel_size must be positive")
+        if self.stereo_evidence is not None and self.fusion != "transformer":
+            raise ValueError("stereo_evidence needs fusion='transformer' (its view tokens join the transformer's)")
 
     @classmethod
     def official(cls) -> "VortxConfig":
@@ -94,10 +125,12 @@ class VortxConfig:
         return self.voxel_size * LEVEL_SCALES[level]
 
     def unet_in_channels(self, level: int) -> int:
-        """Input channels of the level's 3D CNN: [upsampled features | fused 2D features | upsampled logit]."""
+        """Input channels of the level's 3D CNN: [upsampled features | fused 2D features | upsampled logit]
+        plus, with stereo evidence, [fused stereo TSDF]."""
+        evidence = 1 if self.stereo_evidence is not None else 0  # the fused stereo TSDF
         if level == 0:
-            return self.feature_channels[0]
-        return 3 * self.unet_base_widths[level - 1] + self.feature_channels[level] + 1
+            return self.feature_channels[0] + evidence
+        return 3 * self.unet_base_widths[level - 1] + self.feature_channels[level] + 1 + evidence
 
     def unet_out_channels(self, level: int) -> int:
         return 3 * self.unet_base_widths[level]
@@ -122,4 +155,6 @@ class VortxConfig:
 
 
 def _jsonable(value: Any) -> Any:
+    if isinstance(value, StereoEvidenceConfig):
+        return dataclasses.asdict(value)
     return list(value) if isinstance(value, tuple) else value

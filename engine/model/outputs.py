@@ -7,9 +7,12 @@ Voxel coordinates are (N, 4) int64 `[batch, x, y, z]` in units of the level's ow
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import torch
+
+if TYPE_CHECKING:
+    from .stereo_evidence import StereoEvidence
 
 # Fine-level TSDF from the logit: 1.05 * tanh(logit), so the network can reach +-1 exactly.
 TSDF_SCALE = 1.05
@@ -102,6 +105,9 @@ class VortxBatch:
                   shares it (voxel i of level l sits at origin + i * voxel_size_l).
     crop_shape:   (X, Y, Z) crop size in fine voxels, each divisible by 4, e.g. (96, 96, 48); the
                   coarse level starts from the dense (X/4, Y/4, Z/4) grid.
+    stereo:       with stereo evidence: per sample, the stereo depth maps fused into its TSDF (all of
+                  the room's, in the crop frame); None otherwise.
+    stereo_views: (B, V) int64, the map in `stereo[b]` of each view (-1 = none); with `stereo`.
     """
 
     images: torch.Tensor
@@ -109,6 +115,8 @@ class VortxBatch:
     cam_to_world: torch.Tensor
     origin: torch.Tensor
     crop_shape: tuple[int, int, int]
+    stereo: Optional[list["StereoEvidence"]] = None
+    stereo_views: Optional[torch.Tensor] = None
 
     def __post_init__(self) -> None:
         b, v = self.images.shape[:2]
@@ -121,6 +129,10 @@ class VortxBatch:
         self.crop_shape = tuple(int(c) for c in self.crop_shape)  # type: ignore[assignment]
         if len(self.crop_shape) != 3 or any(c <= 0 or c % 4 for c in self.crop_shape):
             raise ValueError(f"crop_shape must be 3 positive multiples of 4, got {self.crop_shape}")
+        if (self.stereo is None) != (self.stereo_views is None):
+            raise ValueError("stereo and stereo_views go together")
+        if self.stereo is not None and (len(self.stereo) != b or tuple(self.stereo_views.shape) != (b, v)):
+            raise ValueError(f"stereo needs one entry per sample ({b}) and stereo_views shape ({b}, {v})")
 
     @property
     def batch_size(self) -> int:
@@ -131,4 +143,6 @@ class VortxBatch:
         for name, value in moved.items():
             if isinstance(value, torch.Tensor):
                 moved[name] = value.to(device)
+        if self.stereo is not None:
+            moved["stereo"] = [e.to(device) for e in self.stereo]
         return VortxBatch(**moved)

@@ -9,6 +9,10 @@
 4. pooling: masked mean (training phase 1) or softmax over the logits with a null view (logit 0,
    zero feature) appended, invalid views at -9e3 - a voxel no view sees fuses to exactly zero.
 
+With stereo evidence (VortxConfig.stereo_evidence), each view's token also gets `Linear(3 -> C)` of
+[projective signed distance, confidence, valid] added after the depth-aware input layer, so the
+transformer and the projective-occupancy logits can weigh views by whether their depth agrees.
+
 `AverageFusion` is the averaging ablation: masked mean of the raw back-projected features.
 Module and parameter names match the official checkpoint (`transformer.encoder_layers.<i>.attn.
 in_proj_weight`, `depth_mlp`, `proj_tsdf_mlp`, ...). Shapes: M voxels, V views, C channels.
@@ -119,21 +123,30 @@ class ViewTransformer(nn.Module):
 class TransformerFusion(nn.Module):
     """VoRTX view fusion. forward -> (pooled (M, C), proj-occ logits (M, V))."""
 
-    def __init__(self, channels: int, num_layers: int, num_heads: int) -> None:
+    def __init__(self, channels: int, num_layers: int, num_heads: int, evidence_channels: int = 0) -> None:
         super().__init__()
         self.transformer = ViewTransformer(channels, num_layers, num_heads)
         self.depth_mlp = nn.Linear(channels + 1, channels)
         self.proj_tsdf_mlp = nn.Linear(channels, 1)
-        for layer in (self.depth_mlp, self.proj_tsdf_mlp):
-            nn.init.kaiming_normal_(layer.weight)
-            nn.init.zeros_(layer.bias)
+        # A separate layer (not a wider depth_mlp) keeps the official checkpoint's parameter names.
+        self.evidence_mlp = nn.Linear(evidence_channels, channels) if evidence_channels else None
+        for layer in (self.depth_mlp, self.proj_tsdf_mlp, self.evidence_mlp):
+            if layer is not None:
+                nn.init.kaiming_normal_(layer.weight)
+                nn.init.zeros_(layer.bias)
 
     def forward(
-        self, features: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, use_proj_occ: bool
+        self, features: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, use_proj_occ: bool,
+        evidence: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """features (M, V, C), depth (M, V) camera z, valid (M, V) -> ((M, C), (M, V))."""
+        """features (M, V, C), depth (M, V) camera z, valid (M, V), evidence (M, V, E) when the module
+        was built with E evidence channels -> ((M, C), (M, V))."""
+        if (evidence is None) != (self.evidence_mlp is None):
+            raise ValueError("stereo evidence must be given exactly when the fusion was built for it")
         z = ((depth - DEPTH_MEAN) / DEPTH_STD).to(features.dtype)
         x = self.depth_mlp(torch.cat([features, z[..., None]], dim=-1))
+        if evidence is not None:
+            x = x + self.evidence_mlp(evidence.to(x.dtype))
         x = self.transformer(x, valid)
         logits = self.proj_tsdf_mlp(x)[..., 0]
         pooled = softmax_null_pool(x, logits, valid) if use_proj_occ else masked_mean_pool(x, valid)
@@ -144,6 +157,7 @@ class AverageFusion(nn.Module):
     """Averaging ablation: no parameters, no projective occupancy."""
 
     def forward(
-        self, features: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, use_proj_occ: bool
+        self, features: torch.Tensor, depth: torch.Tensor, valid: torch.Tensor, use_proj_occ: bool,
+        evidence: None = None,
     ) -> tuple[torch.Tensor, None]:
         return masked_mean_pool(features, valid), None

@@ -5,7 +5,11 @@ Per level l (0 = coarse 16 cm, 1 = medium 8 cm, 2 = fine 4 cm):
   back-project at the voxels + fuse over views  --fuse-->          (N, C_l), LayerNorm'd
   [up-features | fused | up-logit] -> SparseUNet -> 1x1 head      --level_step-->  features, logits
   keep logit > 0, copy to the 8 children        --prune_and_upsample-->  next level's input
-The fine logits are TSDF logits (TSDF = 1.05 tanh). The inference driver (`engine.recon`) calls the
+The fine logits are TSDF logits (TSDF = 1.05 tanh). With stereo evidence (`config.stereo_evidence`,
+engine/model/stereo_evidence.py) `fuse` also takes the views' stereo depth maps (token evidence) and
+`level_step` the fused stereo TSDF of the voxels: an extra 3D CNN input channel, and the head's
+output is added to a prior computed from it (last layer zero at init: untrained = classical fusion).
+The inference driver (`engine.recon`) calls the
 steps itself so it can fuse per tile and run each level's 3D CNN over the whole scene; `forward`
 composes the same steps for a training batch of crops.
 
@@ -30,6 +34,7 @@ from .config import LEVEL_IMAGE_STRIDES, LEVEL_NAMES, VortxConfig
 from .fpn import FeaturePyramid
 from .view_fusion import AverageFusion, TransformerFusion
 from .outputs import FusionOutput, LevelOutput, LevelPrediction, VortxBatch
+from .stereo_evidence import EVIDENCE_CHANNELS, StereoEvidence, fused_tsdf, prior_logits, view_evidence
 from .unet3d import SparseUNet
 from .view_encoding import ViewDirectionEncoder
 
@@ -70,11 +75,15 @@ class VortxNet(nn.Module):
             self.view_embedders[name] = ViewDirectionEncoder(channels)
             self.layer_norms[name] = nn.LayerNorm(channels)
             if config.fusion == "transformer":
-                self.mv_fusion[name] = TransformerFusion(channels, config.attn_layers, config.attn_heads)
+                tokens = config.stereo_evidence is not None and config.stereo_evidence.view_tokens
+                self.mv_fusion[name] = TransformerFusion(channels, config.attn_layers, config.attn_heads,
+                                                         EVIDENCE_CHANNELS if tokens else 0)
             else:
                 self.mv_fusion[name] = AverageFusion()
             self.cnns3d[name] = SparseUNet(config.unet_in_channels(level), config.unet_base_widths[level])
             self.output_layers[name] = SparseConv3d(config.unet_out_channels(level), 1, kernel_size=1)
+            if config.stereo_evidence is not None:
+                nn.init.zeros_(self.output_layers[name].kernel)  # residual on the stereo prior
         for module in self.cnns3d.modules():
             if isinstance(module, SparseBatchNorm):
                 module.scene_statistics = config.sparse_norm_statistics == "scene"
@@ -85,6 +94,21 @@ class VortxNet(nn.Module):
     def backbone(self) -> FeaturePyramid:
         """The 2D feature pyramid (`trunk_modules()`, `freeze_trunk()`); stored as `cnn2d`."""
         return self.cnn2d
+
+    @property
+    def uses_stereo(self) -> bool:
+        """True when the network takes stereo evidence (fuse's `evidence`, level_step's `stereo_tsdf`)."""
+        return self.config.stereo_evidence is not None
+
+    def evidence_truncation(self, level: int) -> float:
+        """Truncation in metres of the level's stereo evidence (its voxels times truncation_voxels)."""
+        if self.config.stereo_evidence is None:
+            raise ValueError("this network takes no stereo evidence")
+        return self.config.stereo_evidence.truncation_voxels * self.config.level_voxel_size(level)
+
+    def stereo_tsdf(self, level: int, points_world: torch.Tensor, evidence: StereoEvidence) -> torch.Tensor:
+        """(M,) TSDF fused from all of the scene's stereo maps at points (M, 3), the level's truncation."""
+        return fused_tsdf(points_world, evidence, self.evidence_truncation(level))
 
     def set_use_proj_occ(self, use_proj_occ: bool) -> None:
         """Switch view pooling: softmax-with-null over projective occupancy (True) or masked mean."""
@@ -117,13 +141,21 @@ class VortxNet(nn.Module):
         cam_to_world: torch.Tensor,
         image_hw: tuple[int, int],
         with_views: bool = True,
+        evidence: StereoEvidence | None = None,
     ) -> FusionOutput:
         """Back-project `feats` to the points and fuse over views.
 
         points_world (M, 3) voxel corners in metres; feats (V, C, h, w) from encode_views at this
         level; K (V, 3, 3) in image pixels; cam_to_world (V, 4, 4); image_hw the images' (H, W).
         with_views=False drops the (M, V) per-view outputs (inference needs only the features).
+        evidence: the V views' stereo depth maps (StereoEvidence.views), required exactly when the
+        config asks for view tokens.
         """
+        tokens = self.config.stereo_evidence is not None and self.config.stereo_evidence.view_tokens
+        if tokens and evidence is None:
+            raise ValueError("these weights take stereo evidence: pass the views' stereo depth maps to fuse()")
+        if evidence is not None and len(evidence) != len(feats):
+            raise ValueError(f"stereo evidence has {len(evidence)} maps for {len(feats)} views")
         stride = LEVEL_IMAGE_STRIDES[level]
         h, w = feats.shape[-2:]
         if (h, w) != (-(-image_hw[0] // stride), -(-image_hw[1] // stride)):
@@ -134,7 +166,8 @@ class VortxNet(nn.Module):
         # max(.., 1): an empty point set still makes one (empty) chunk, so shapes stay consistent.
         for start in range(0, max(len(points), 1), self.fusion_chunk):
             chunk_pooled, chunk_logits, projection = self._fuse_chunk(
-                name, points[start : start + self.fusion_chunk], feats, K, cam_to_world, stride
+                level, points[start : start + self.fusion_chunk], feats, K, cam_to_world, stride,
+                evidence if tokens else None,
             )
             pooled.append(chunk_pooled)
             if with_views:  # otherwise let each chunk's (m, V) tensors go at once
@@ -152,9 +185,11 @@ class VortxNet(nn.Module):
         )
 
     def _fuse_chunk(
-        self, name: str, points: torch.Tensor, feats: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor, stride: int
+        self, level: int, points: torch.Tensor, feats: torch.Tensor, K: torch.Tensor, cam_to_world: torch.Tensor,
+        stride: int, evidence: StereoEvidence | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor | None, Projection]:
         """points (m, 3) -> pooled (m, C) before LayerNorm, proj-occ logits (m, V) | None, the projection."""
+        name = LEVEL_NAMES[level]
         projection = project_to_feature_maps(points, K, cam_to_world, stride, tuple(feats.shape[-2:]))
         # Points no view sees pool to exactly 0 under both pooling rules, so the transformer only
         # runs on the seen ones; their per-view logits (never valid, never supervised) stay 0.
@@ -164,7 +199,11 @@ class VortxNet(nn.Module):
         if not all_seen:
             grid, depth, valid = grid[seen], depth[seen], valid[seen]
         sampled = sample_features(feats, grid)  # (m, V, C)
-        pooled, logits = self.mv_fusion[name](sampled, depth, valid, self.use_proj_occ)
+        tokens = None
+        if evidence is not None:
+            seen_points = points if all_seen else points[seen]
+            tokens = view_evidence(seen_points, evidence, self.evidence_truncation(level)).to(sampled.dtype)
+        pooled, logits = self.mv_fusion[name](sampled, depth, valid, self.use_proj_occ, tokens)
         if not all_seen:
             pooled = pooled.new_zeros(len(points), pooled.shape[1]).index_copy(0, seen, pooled)
             if logits is not None:
@@ -172,14 +211,24 @@ class VortxNet(nn.Module):
         return pooled, logits, projection
 
     def level_step(
-        self, level: int, coords: torch.Tensor, fused: torch.Tensor, previous: LevelOutput | None
+        self, level: int, coords: torch.Tensor, fused: torch.Tensor, previous: LevelOutput | None,
+        stereo_tsdf: torch.Tensor | None = None,
     ) -> LevelOutput:
         """3D CNN + head at one level.
 
         coords (N, 4) [batch, x, y, z] level units; fused (N, C_l) from fuse(); previous: the
-        upsampled output of the level above, row-aligned with coords (None at level 0).
+        upsampled output of the level above, row-aligned with coords (None at level 0);
+        stereo_tsdf (N,) the voxels' fused stereo TSDF (`stereo_tsdf()`), required exactly when the
+        config has stereo evidence.
         """
         name = LEVEL_NAMES[level]
+        if self.uses_stereo != (stereo_tsdf is not None):
+            raise ValueError("stereo_tsdf must be given exactly when the weights take stereo evidence")
+        if stereo_tsdf is not None:
+            stereo_tsdf = stereo_tsdf.reshape(-1).to(fused.dtype)
+            if len(stereo_tsdf) != len(coords):
+                raise ValueError(f"stereo_tsdf has {len(stereo_tsdf)} rows for {len(coords)} voxels")
+            fused = torch.cat([fused, stereo_tsdf[:, None]], dim=1)
         if level == 0:
             x = fused
         else:
@@ -194,6 +243,8 @@ class VortxNet(nn.Module):
             return LevelOutput(coords, x.new_zeros(0, width), x.new_zeros(0))
         voxels = self.cnns3d[name](SparseVoxels(coords, x, stride=1))
         logits = self.output_layers[name](voxels).feats[:, 0]
+        if stereo_tsdf is not None:
+            logits = logits + prior_logits(level == len(LEVEL_NAMES) - 1, stereo_tsdf).to(logits.dtype)
         return LevelOutput(coords, voxels.feats, logits)
 
     def prune_and_upsample(self, out: LevelOutput) -> LevelOutput:
@@ -235,8 +286,8 @@ class VortxNet(nn.Module):
                 coords = previous.coords
             voxel_size = self.config.level_voxel_size(level)
             points = batch.origin.to(torch.float32)[coords[:, 0]] + coords[:, 1:].to(torch.float32) * voxel_size
-            fused, views = self._fuse_batch(level, coords, points, feats, batch, image_hw)
-            out = self.level_step(level, coords, fused, previous)
+            fused, views, stereo_tsdf = self._fuse_batch(level, coords, points, feats, batch, image_hw)
+            out = self.level_step(level, coords, fused, previous, stereo_tsdf)
             predictions[name] = LevelPrediction(coords=coords, points=points, logits=out.logits,
                                                 voxel_size=voxel_size, **views)
         return predictions
@@ -249,12 +300,16 @@ class VortxNet(nn.Module):
         feats: list[list[torch.Tensor]],
         batch: VortxBatch,
         image_hw: tuple[int, int],
-    ) -> tuple[torch.Tensor, dict[str, torch.Tensor | None]]:
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor | None], torch.Tensor | None]:
         """fuse() per sample (each with its own views), scattered back into the batch's row order.
 
-        coords (N, 4), points (N, 3), feats[sample][level] (V, C, h, w) -> fused (N, C) and the
-        per-view fields of LevelPrediction ((N, V) / (N, V, 2))."""
+        coords (N, 4), points (N, 3), feats[sample][level] (V, C, h, w) -> fused (N, C), the
+        per-view fields of LevelPrediction ((N, V) / (N, V, 2)) and, with stereo evidence, the fused
+        stereo TSDF (N,) of each sample's own maps."""
         n, v = len(coords), batch.images.shape[1]
+        if self.uses_stereo and batch.stereo is None:
+            raise ValueError("these weights take stereo evidence: the batch has none (VortxBatch.stereo)")
+        stereo_tsdf = points.new_ones(n) if self.uses_stereo else None
         fused = None
         views: dict[str, torch.Tensor | None] = {
             "proj_occ_logits": None,
@@ -266,7 +321,12 @@ class VortxNet(nn.Module):
             rows = torch.nonzero(coords[:, 0] == i).view(-1)
             if len(rows) == 0:
                 continue
-            fo = self.fuse(level, points[rows], feats[i][level], batch.K[i], batch.cam_to_world[i], image_hw)
+            evidence = None
+            if self.uses_stereo:
+                evidence = batch.stereo[i].views(batch.stereo_views[i])
+                stereo_tsdf = stereo_tsdf.index_copy(0, rows, self.stereo_tsdf(level, points[rows], batch.stereo[i]))
+            fo = self.fuse(level, points[rows], feats[i][level], batch.K[i], batch.cam_to_world[i], image_hw,
+                           evidence=evidence)
             if fused is None:
                 fused = fo.features.new_zeros(n, fo.features.shape[1])
             fused = fused.index_copy(0, rows, fo.features)
@@ -278,7 +338,7 @@ class VortxNet(nn.Module):
                 views[key][rows] = getattr(fo, key).to(views[key].dtype)
         if fused is None:
             fused = points.new_zeros(n, self.config.feature_channels[level])
-        return fused, views
+        return fused, views, stereo_tsdf
 
 
 def dense_grid_coords(batch_size: int, shape: list[int], device: torch.device) -> torch.Tensor:

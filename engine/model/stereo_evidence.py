@@ -1,0 +1,143 @@
+"""Stereo depth as geometric evidence for VoRTX, per voxel (design: ../shared/design/stereo-evidence.md).
+
+Two inputs, both computed from the plane-sweep depth maps (engine/stereo), never from exact depth:
+
+- per voxel and view, a token feature joined with the appearance features in the view transformer:
+  `[clamp((d_view(u, v) - z_view) / trunc, -1, 1), confidence(u, v), valid]`, where (u, v) is the
+  voxel's projection into the view's depth map, z_view its camera depth and valid says the view has
+  a depth there (inside the map, in front of the camera, depth > 0). Invalid entries are all zero.
+- per voxel, the TSDF fused from all depth maps of the scene (FineRecon): the project's integration
+  rule (engine/tsdf/integration.py) evaluated at the voxel's position: mean over the maps that see
+  the voxel no further than `trunc` behind their depth of min(1, (d - z) / trunc), then the
+  ground-truth sign convention (negative in front of a surface, -1 free space, +1 never observed).
+
+The truncation is `truncation_voxels` voxels of the level the voxel belongs to (16 / 8 / 4 cm).
+A depth pixel (0, 0) covers [0, 1)^2 (the engine's K convention): a projection lands in pixel floor(u).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import torch
+
+from ..geometry.cameras import project_points_torch
+
+EVIDENCE_CHANNELS = 3  # projective signed distance, confidence, valid flag
+POINT_CHUNK = 16384  # voxels per fused-TSDF pass: bounds the (chunk, maps) float64 work arrays
+OCCUPANCY_PRIOR_GAIN = 20.0  # logit per unit of |tsdf|: confident, but a trained head can overrule it
+NEAR_SURFACE = 0.999  # |fused tsdf| below this = within the truncation band of some view's depth
+
+
+@dataclass
+class StereoEvidence:
+    """A scene's (or a training crop's) stereo depth maps, in the frame the voxels are given in.
+
+    depth:        (S, h, w) float32 metres (planar z), 0 = no depth.
+    confidence:   (S, h, w) float32 in [0, 1].
+    K:            (S, 3, 3) float32 intrinsics in pixels of the depth maps.
+    cam_to_world: (S, 4, 4) float32 camera-to-world (OpenCV axes).
+    """
+
+    depth: torch.Tensor
+    confidence: torch.Tensor
+    K: torch.Tensor
+    cam_to_world: torch.Tensor
+
+    def __post_init__(self) -> None:
+        s = self.depth.shape[0]
+        if self.depth.dim() != 3 or self.confidence.shape != self.depth.shape:
+            raise ValueError(f"stereo depth and confidence must both be (S, h, w), got {tuple(self.depth.shape)} "
+                             f"and {tuple(self.confidence.shape)}")
+        if tuple(self.K.shape) != (s, 3, 3) or tuple(self.cam_to_world.shape) != (s, 4, 4):
+            raise ValueError(f"stereo K must be ({s}, 3, 3) and cam_to_world ({s}, 4, 4), got "
+                             f"{tuple(self.K.shape)} and {tuple(self.cam_to_world.shape)}")
+
+    def __len__(self) -> int:
+        return self.depth.shape[0]
+
+    @classmethod
+    def from_depth_maps(cls, maps, device: torch.device | str = "cpu") -> "StereoEvidence":
+        """From a list of engine.stereo.DepthMap (all of one size)."""
+        if not maps:
+            raise ValueError("no stereo depth maps")
+        return cls(
+            depth=torch.as_tensor(np.stack([m.depth for m in maps]), dtype=torch.float32, device=device),
+            confidence=torch.as_tensor(np.stack([m.confidence for m in maps]), dtype=torch.float32, device=device),
+            K=torch.as_tensor(np.stack([m.K for m in maps]), dtype=torch.float32, device=device),
+            cam_to_world=torch.as_tensor(np.stack([m.pose for m in maps]), dtype=torch.float32, device=device),
+        )
+
+    def views(self, index: torch.Tensor) -> "StereoEvidence":
+        """The maps of V views, `index` (V,) int64 into the maps; -1 = the view has no depth map (an
+        all-zero map, so its evidence is invalid everywhere)."""
+        index = torch.as_tensor(index, dtype=torch.int64, device=self.depth.device)
+        missing = index < 0
+        safe = index.clamp(min=0)
+        depth = self.depth[safe]
+        confidence = self.confidence[safe]
+        if bool(missing.any()):
+            keep = (~missing).to(depth.dtype)[:, None, None]
+            depth, confidence = depth * keep, confidence * keep
+        return StereoEvidence(depth, confidence, self.K[safe], self.cam_to_world[safe])
+
+    def to(self, device: torch.device | str) -> "StereoEvidence":
+        return StereoEvidence(self.depth.to(device), self.confidence.to(device), self.K.to(device),
+                              self.cam_to_world.to(device))
+
+
+def _depth_lookup(points: torch.Tensor, evidence: StereoEvidence) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """points (M, 3) -> camera z (M, S), map depth d (M, S) and confidence (M, S) at the pixel containing
+    the projection, and `seen` (M, S): inside the map, z > 0 and d > 0 (d, confidence 0 elsewhere)."""
+    u, v, z = project_points_torch(points, evidence.K.to(points.dtype), evidence.cam_to_world)
+    s, h, w = evidence.depth.shape
+    finite = torch.isfinite(u) & torch.isfinite(v)
+    ui = torch.floor(torch.where(finite, u, torch.full_like(u, -1.0)))
+    vi = torch.floor(torch.where(finite, v, torch.full_like(v, -1.0)))
+    inside = (z > 0) & (ui >= 0) & (ui < w) & (vi >= 0) & (vi < h)
+    flat = (vi.clamp(0, h - 1) * w + ui.clamp(0, w - 1)).long() + torch.arange(s, device=points.device) * (h * w)
+    d = evidence.depth.reshape(-1)[flat].to(points.dtype)
+    c = evidence.confidence.reshape(-1)[flat].to(points.dtype)
+    seen = inside & (d > 0)
+    zero = torch.zeros_like(d)
+    return z, torch.where(seen, d, zero), torch.where(seen, c, zero), seen
+
+
+def view_evidence(points: torch.Tensor, evidence: StereoEvidence, trunc: float) -> torch.Tensor:
+    """Token evidence (M, V, 3) = [psdf, confidence, valid] of points (M, 3) in the V views of
+    `evidence` (one map per view, see StereoEvidence.views); psdf = clamp((d - z) / trunc, -1, 1)."""
+    z, d, c, seen = _depth_lookup(points.to(torch.float32), evidence)
+    psdf = torch.where(seen, ((d - z) / trunc).clamp(-1.0, 1.0), torch.zeros_like(d))
+    return torch.stack([psdf, c, seen.to(psdf.dtype)], dim=-1)
+
+
+def fused_tsdf(points: torch.Tensor, evidence: StereoEvidence, trunc: float) -> torch.Tensor:
+    """(M,) TSDF fused from every map of `evidence` at points (M, 3), ground-truth sign convention
+    (see the module doc); float64 projection, as the dense integration, so both agree voxel for voxel."""
+    out = []
+    points = points.to(torch.float64)
+    for start in range(0, max(len(points), 1), POINT_CHUNK):
+        z, d, _, seen = _depth_lookup(points[start:start + POINT_CHUNK], evidence)
+        diff = d - z
+        update = seen & (diff >= -trunc)
+        dist = torch.where(update, (diff / trunc).clamp(max=1.0), torch.zeros_like(diff))
+        count = update.sum(dim=1)
+        mean = dist.sum(dim=1) / count.clamp(min=1)
+        # Running mean (+ in front) -> ground truth convention: negate values < 1, observed 1 -> -1.
+        tsdf = torch.where(mean < 1, -mean, torch.full_like(mean, -1.0))
+        out.append(torch.where(count > 0, tsdf, torch.ones_like(tsdf)).to(torch.float32))
+    return torch.cat(out)
+
+
+def prior_logits(level_is_fine: bool, stereo_tsdf: torch.Tensor) -> torch.Tensor:
+    """The logits an untrained evidence model starts from (its heads' last layers are zero): at the
+    fine level the logit whose TSDF (1.05 tanh) is the fused TSDF; above it an occupancy logit that
+    keeps every voxel near an observed surface (|tsdf| < 1) and prunes free and unobserved space."""
+    if level_is_fine:
+        from .outputs import TSDF_SCALE
+
+        return torch.atanh((stereo_tsdf / TSDF_SCALE).clamp(-0.999, 0.999))
+    return OCCUPANCY_PRIOR_GAIN * (NEAR_SURFACE - stereo_tsdf.abs())
+
