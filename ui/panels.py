@@ -12,6 +12,7 @@ from typing import Any, Optional
 import bpy
 
 from ..vortx_blender import jobs
+from ..vortx_blender import result as results
 from ..vortx_blender.jobs import Job
 from ..vortx_blender.properties import recon_property_names
 
@@ -114,8 +115,14 @@ def draw_tiles(layout: Any, settings: Any) -> None:
     row.operator("vortx.bake_tiles", icon="MOD_WIREFRAME")
 
 
-def draw_result_settings(layout: Any, settings: Any) -> None:
+def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = None) -> None:
+    """`result`: the result object the observation toggle acts on (results.shown_result), or None."""
     _settings_layout(layout)
+    if result is not None:
+        if results.has_observation(result.data):
+            layout.prop(result, results.SHOW_OBSERVATION, icon="HIDE_OFF")
+        else:
+            layout.label(text="No observation data on this result", icon="INFO")
     col = layout.column(align=True)
     col.prop(settings, "min_piece_faces")
     col.prop(settings, "min_piece_fraction")
@@ -201,7 +208,7 @@ class VORTX_PT_result(_ReconstructionChild):
     bl_label = "Result"
 
     def draw(self, context: bpy.types.Context) -> None:
-        draw_result_settings(self.layout, context.scene.vortx)
+        draw_result_settings(self.layout, context.scene.vortx, results.shown_result(context.scene, context.active_object))
 
 
 class VORTX_PT_advanced(_ReconstructionChild):

@@ -4,9 +4,9 @@ Modules here hold the logic that operators and panels use, written as functions 
 (a scene, a Capture) rather than a UI context, so tests run them headless.
 """
 
-from . import job_operator, preferences, properties, tile_overlay
+from . import job_operator, preferences, properties, result, tile_overlay
 
-_modules = (properties, job_operator, preferences, tile_overlay)
+_modules = (properties, job_operator, preferences, result, tile_overlay)
 
 
 def register() -> None:

@@ -11,6 +11,12 @@ what each format expects (PLY/OBJ bytes in sRGB, glTF linear floats).
 
 The result objects live in a "VoRTX Result" collection (found by a tag, so renaming it is fine) and
 carry how they were made as custom properties (`vortx_*`), so a .blend file documents its meshes.
+
+The confidence layer (engine/stereo/vertex_evidence.py): the engine's per-vertex attributes
+(observations, stereo_confidence, completed) become FLOAT point attributes of the same names, and an
+"Observation" colour attribute shows them red (seen by few photos or weak matches: take more photos
+there) to green (well observed). The object's `vortx_show_observation` toggle switches which colour
+attribute the viewport and the material show; it changes no geometry.
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ import bpy
 import numpy as np
 
 from ..engine.mesh_io import Mesh
+from ..engine.observation import EVIDENCE_ATTRIBUTES, observation_colours
 
 RESULT_COLLECTION_NAME = "VoRTX Result"
 COLLECTION_TAG = "vortx_result_collection"
@@ -32,6 +39,10 @@ RESULT_TAG = "vortx_result"
 MATERIAL_TAG = "vortx_vertex_colour"
 MATERIAL_NAME = "VoRTX Vertex Colour"
 COLOUR_ATTRIBUTE = "Color"
+OBSERVATION_ATTRIBUTE = "Observation"  # the confidence layer's colours (FLOAT_COLOR point attribute)
+OBSERVATION_MATERIAL_TAG = "vortx_observation_colour"
+OBSERVATION_MATERIAL_NAME = "VoRTX Observation Colour"
+SHOW_OBSERVATION = "vortx_show_observation"  # the Object toggle (registered below)
 DECIMATE_MODIFIER = "VoRTX Decimate"
 
 # Custom properties on a result object.
@@ -99,10 +110,15 @@ def linear_to_srgb(values: np.ndarray) -> np.ndarray:
 # --- mesh datablock ---------------------------------------------------------------------------------
 
 
-def build_mesh(name: str, vertices: np.ndarray, faces: np.ndarray, colors: Optional[np.ndarray]) -> bpy.types.Mesh:
+def build_mesh(
+    name: str, vertices: np.ndarray, faces: np.ndarray, colors: Optional[np.ndarray],
+    attributes: Optional[dict[str, np.ndarray]] = None,
+) -> bpy.types.Mesh:
     """A new Mesh datablock of triangles (not linked to anything), smooth shaded, with a colour attribute.
 
-    vertices (V, 3) float32 world metres; faces (F, 3) int32; colors (V, 3) float 0..1 sRGB or None.
+    vertices (V, 3) float32 world metres; faces (F, 3) int32; colors (V, 3) float 0..1 sRGB or None;
+    attributes: name -> (V,) per-vertex values, stored as FLOAT point attributes (with the evidence
+    attributes also the Observation colours); the photo colours stay the shown ones.
     """
     vertices = np.ascontiguousarray(vertices, dtype=np.float32).reshape(-1, 3)
     faces = np.ascontiguousarray(faces, dtype=np.int32).reshape(-1, 3)
@@ -118,6 +134,7 @@ def build_mesh(name: str, vertices: np.ndarray, faces: np.ndarray, colors: Optio
         mesh.update(calc_edges=True)
         # Marching-cubes surfaces are sampled smooth surfaces; flat shading would show every 4 cm facet.
         mesh.shade_smooth()
+        set_vertex_attributes(mesh, attributes or {})
         if colors is not None:
             set_point_colours(mesh, colors)
     except Exception:
@@ -145,6 +162,75 @@ def set_point_colours(mesh: bpy.types.Mesh, colors: np.ndarray) -> bpy.types.Att
     return attribute
 
 
+def set_vertex_attributes(mesh: bpy.types.Mesh, attributes: dict[str, np.ndarray]) -> None:
+    """FLOAT point attributes from (V,) arrays, and the Observation colours when the evidence is complete.
+
+    Names Blender already uses on the mesh (position, ...) are refused: they would clobber geometry.
+    """
+    for name, values in attributes.items():
+        values = np.ascontiguousarray(values, dtype=np.float32).reshape(-1)
+        if len(values) != len(mesh.vertices):
+            raise ValueError(f"attribute {name!r} has {len(values)} values for {len(mesh.vertices)} vertices")
+        if name.startswith(".") or name in mesh.attributes or name == OBSERVATION_ATTRIBUTE:
+            raise ValueError(f"attribute name {name!r} is taken by Blender or VoRTX on mesh '{mesh.name}'")
+        mesh.attributes.new(name, "FLOAT", "POINT").data.foreach_set("value", values)
+    if all(name in attributes for name in EVIDENCE_ATTRIBUTES):
+        colours = observation_colours(attributes)
+        layer = mesh.color_attributes.new(OBSERVATION_ATTRIBUTE, "FLOAT_COLOR", "POINT")
+        rgba = np.ones((len(colours), 4), dtype=np.float32)
+        rgba[:, :3] = srgb_to_linear(colours)
+        layer.data.foreach_set("color", rgba.ravel())
+
+
+def vertex_attributes(mesh: bpy.types.Mesh) -> dict[str, np.ndarray]:
+    """The evidence attributes present on `mesh`, name -> (V,) float32 (the inverse of set_vertex_attributes
+    for the names the engine writes)."""
+    out = {}
+    for name in EVIDENCE_ATTRIBUTES:
+        attribute = mesh.attributes.get(name)
+        if attribute is not None and attribute.domain == "POINT" and attribute.data_type == "FLOAT":
+            values = np.empty(len(mesh.vertices), dtype=np.float32)
+            attribute.data.foreach_get("value", values)
+            out[name] = values
+    return out
+
+
+def has_observation(mesh: bpy.types.Mesh) -> bool:
+    """Whether the mesh carries the confidence layer (results made before it, or by other tools, do not)."""
+    return mesh.color_attributes.get(OBSERVATION_ATTRIBUTE) is not None
+
+
+def show_colour_attribute(mesh: bpy.types.Mesh, name: str) -> None:
+    """Make the colour attribute `name` the one the viewport (active) and Color Attribute nodes (render) show."""
+    attribute = mesh.color_attributes.get(name)
+    if attribute is None:
+        return
+    mesh.color_attributes.active_color = attribute
+    mesh.color_attributes.render_color_index = mesh.color_attributes.find(name)
+
+
+def show_observation(obj: bpy.types.Object, show: bool) -> None:
+    """Show `obj`'s confidence layer (True) or its photo colours (False): the shown colour attribute and,
+    in the slots holding one of our two materials, the material that reads it. Geometry is untouched;
+    a mesh without the layer keeps its photo colours."""
+    mesh = obj.data
+    show = bool(show) and has_observation(mesh)
+    show_colour_attribute(mesh, OBSERVATION_ATTRIBUTE if show else COLOUR_ATTRIBUTE)
+    for index, material in enumerate(mesh.materials):
+        if material is not None and (material.get(MATERIAL_TAG) or material.get(OBSERVATION_MATERIAL_TAG)):
+            mesh.materials[index] = observation_material() if show else vertex_colour_material()
+
+
+def shown_colour_attribute(mesh: bpy.types.Mesh) -> Optional[str]:
+    """The name of the colour attribute the viewport shows, or None."""
+    active = mesh.color_attributes.active_color
+    return active.name if active is not None else None
+
+
+def _show_observation_changed(obj: bpy.types.Object, _context: bpy.types.Context) -> None:
+    show_observation(obj, getattr(obj, SHOW_OBSERVATION))
+
+
 def mesh_arrays(mesh: bpy.types.Mesh) -> Mesh:
     """The triangle mesh of a Blender mesh as engine arrays (colours back in sRGB, normals None).
 
@@ -164,25 +250,35 @@ def mesh_arrays(mesh: bpy.types.Mesh) -> Mesh:
         rgba = np.empty(4 * len(mesh.vertices), dtype=np.float32)
         attribute.data.foreach_get("color", rgba)
         colors = linear_to_srgb(rgba.reshape(-1, 4)[:, :3])
-    return Mesh(vertices=vertices.reshape(-1, 3), faces=corners.reshape(-1, 3), colors=colors)
+    return Mesh(vertices=vertices.reshape(-1, 3), faces=corners.reshape(-1, 3), colors=colors,
+                attributes=vertex_attributes(mesh))
 
 
 # --- material ----------------------------------------------------------------------------------------
 
 
 def vertex_colour_material() -> bpy.types.Material:
-    """The shared material showing the colour attribute (reused while its tag is on it)."""
+    """The shared material showing the photo colour attribute (reused while its tag is on it)."""
+    return _colour_attribute_material(MATERIAL_TAG, MATERIAL_NAME, COLOUR_ATTRIBUTE)
+
+
+def observation_material() -> bpy.types.Material:
+    """The shared material showing the confidence layer's colours (reused while its tag is on it)."""
+    return _colour_attribute_material(OBSERVATION_MATERIAL_TAG, OBSERVATION_MATERIAL_NAME, OBSERVATION_ATTRIBUTE)
+
+
+def _colour_attribute_material(tag: str, name: str, attribute: str) -> bpy.types.Material:
     for material in bpy.data.materials:
-        if material.get(MATERIAL_TAG):
+        if material.get(tag):
             return material
-    material = bpy.data.materials.new(MATERIAL_NAME)
-    material[MATERIAL_TAG] = True
+    material = bpy.data.materials.new(name)
+    material[tag] = True
     material.use_nodes = True  # a no-op from 5.0 (always nodes), needed in 4.x
     tree = material.node_tree
     principled = next(node for node in tree.nodes if node.type == "BSDF_PRINCIPLED")
     principled.inputs["Roughness"].default_value = 0.9  # walls and furniture are matte; no fake gloss
     colour = tree.nodes.new("ShaderNodeVertexColor")
-    colour.layer_name = COLOUR_ATTRIBUTE
+    colour.layer_name = attribute
     colour.location = (principled.location.x - 300, principled.location.y)
     tree.links.new(colour.outputs["Color"], principled.inputs["Base Color"])
     return material
@@ -262,7 +358,7 @@ def insert_result(
     name = name or result_name(provenance.capture_path)
     had_material = any(m.get(MATERIAL_TAG) for m in bpy.data.materials)
     had_collection = find_result_collection(scene) is not None
-    data = build_mesh(name, mesh.vertices, mesh.faces, mesh.colors)
+    data = build_mesh(name, mesh.vertices, mesh.faces, mesh.colors, mesh.attributes)
     obj: Optional[bpy.types.Object] = None
     try:
         data.materials.append(vertex_colour_material())
@@ -335,11 +431,8 @@ def decimate(obj: bpy.types.Object, target_faces: int, depsgraph: bpy.types.Deps
     if old.users == 0:
         bpy.data.meshes.remove(old)
     new.name = name
-    # new_from_object keeps the attributes but not which colour attribute is shown.
-    attribute = new.color_attributes.get(COLOUR_ATTRIBUTE)
-    if attribute is not None:
-        new.color_attributes.active_color = attribute
-        new.color_attributes.render_color_index = new.color_attributes.find(COLOUR_ATTRIBUTE)
+    # new_from_object keeps the attributes (interpolated) but not which colour attribute is shown.
+    show_observation(obj, getattr(obj, SHOW_OBSERVATION, False))
     return len(new.polygons)
 
 
@@ -347,10 +440,36 @@ def replace_mesh(obj: bpy.types.Object, mesh: Mesh) -> None:
     """Give `obj` new geometry from arrays, keeping its materials (used by Clean Result)."""
     old = obj.data
     name = old.name
-    new = build_mesh(name, mesh.vertices, mesh.faces, mesh.colors)
+    new = build_mesh(name, mesh.vertices, mesh.faces, mesh.colors, mesh.attributes)
     for material in old.materials:
         new.materials.append(material)
     obj.data = new
     if old.users == 0:
         bpy.data.meshes.remove(old)
     new.name = name
+    show_observation(obj, getattr(obj, SHOW_OBSERVATION, False))
+
+
+def shown_result(scene: bpy.types.Scene, active: Optional[bpy.types.Object]) -> Optional[bpy.types.Object]:
+    """The result the Result panel's toggle acts on: the active object when it is a result, else the newest."""
+    if active is not None and active.get(RESULT_TAG) and active.name in scene.objects:
+        return active
+    results = result_objects(scene)
+    return results[-1] if results else None
+
+
+# --- registration (the Object toggle) --------------------------------------------------------------------
+
+
+def register() -> None:
+    setattr(bpy.types.Object, SHOW_OBSERVATION, bpy.props.BoolProperty(
+        name="Show Observation",
+        description="Colour the result by how well the photos observed it: red = seen by few photos or only weak "
+                    "matches (take more photos there), green = well observed. Changes no geometry",
+        default=False,
+        update=_show_observation_changed,
+    ))
+
+
+def unregister() -> None:
+    delattr(bpy.types.Object, SHOW_OBSERVATION)

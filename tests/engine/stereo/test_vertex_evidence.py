@@ -8,10 +8,8 @@ import numpy as np
 import pytest
 
 from engine.stereo.depth_maps import DepthMap
-from engine.stereo.vertex_evidence import (
-    COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE, evidence_summary, observation_colours, observation_score,
-    observe_vertices, vertex_evidence,
-)
+from engine.observation import COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE
+from engine.stereo.vertex_evidence import evidence_summary, observe_vertices, vertex_evidence
 
 PLANE_Z = 2.0  # world z of the plane; cameras at z = 0 look along +z (OpenCV axes, identity rotation)
 SIZE = (80, 60)  # (w, h) of each depth map
@@ -105,19 +103,3 @@ def test_completed_only_where_a_network_filled_in_unobserved_surface(three_views
     summary = evidence_summary(network)
     assert summary["unobserved"] == pytest.approx(1 / len(vertices), abs=1e-4)
     assert summary["completed"] == summary["unobserved"]
-
-
-def test_colours_run_from_red_for_unseen_to_green_for_well_observed() -> None:
-    attributes = {
-        OBSERVATIONS: np.float32([0, 1, 5, 8, 8]),
-        STEREO_CONFIDENCE: np.float32([0, 0.9, 0.9, 0.4, 0.95]),
-        COMPLETED: np.float32([1, 0, 0, 0, 0]),
-    }
-    score = observation_score(attributes)
-    assert score[0] == 0 and score[2] == 1 and score[4] == 1
-    assert 0 < score[1] < score[3] < 1  # one view is worse than many views with weak matches
-    colours = observation_colours(attributes)
-    red, green = colours[0], colours[4]
-    assert red[0] > 0.7 and red[1] < 0.2  # red
-    assert green[1] > 0.7 and green[0] < 0.2  # green
-    assert colours.min() >= 0 and colours.max() <= 1
