@@ -1,6 +1,8 @@
 """scripts/vortx_batch.py end to end, as a user runs it: a subprocess with the bpy module and its own
 BLENDER_USER_RESOURCES (so it mounts this checkout itself), on a tiny posed ScanNet-layout capture
-with a seeded random network. The written .blend is inspected in another fresh process."""
+with a seeded random network. The written .blend is inspected in another fresh process. A batch of
+a good and a bad capture checks the per-capture reports, the exit status and that the bad one
+leaves no .blend."""
 
 from __future__ import annotations
 
@@ -53,6 +55,22 @@ def scannet_capture(tmp_path_factory) -> Path:
     return folder
 
 
+def test_several_captures_need_an_output_folder_and_export_takes_a_suffix() -> None:
+    from vortx_batch import parse_arguments, plan_jobs
+
+    with pytest.raises(SystemExit):
+        parse_arguments(["a", "b", "--out", "x.blend"])
+    with pytest.raises(SystemExit):
+        parse_arguments(["a", "--out", "out", "--export", "mesh.fbx"])
+    args = parse_arguments(["rooms/kitchen", "rooms/kitchen", "scans/hall/transforms.json", "--out", "out", "--export", "glb"])
+    jobs = plan_jobs(args, args.captures)
+    assert [(j.blend.name, j.report.name, j.export.name) for j in jobs] == [
+        ("kitchen.blend", "kitchen.report.json", "kitchen.glb"), ("kitchen_2.blend", "kitchen_2.report.json", "kitchen_2.glb"),
+        ("hall.blend", "hall.report.json", "hall.glb")]  # a transforms.json file: named by its folder
+    single = parse_arguments(["cap", "--out", "out/scene.blend"])
+    assert single.single and plan_jobs(single, single.captures)[0].report == Path("out/scene.report.json")
+
+
 def test_arguments_after_double_dash_or_directly() -> None:
     from vortx_batch import parse_arguments, script_arguments
 
@@ -95,6 +113,15 @@ def test_batch_writes_blend_with_cameras_and_mesh(scannet_capture: Path, tmp_pat
     np.testing.assert_allclose(mesh.vertices.max(0), world.max(0), atol=1e-4)
     assert mesh.colors is not None and len(mesh.faces) >= result["faces"]
 
+    # The report beside the .blend: what was done, with the numbers seen above.
+    report = json.loads((tmp_path / "out" / "scene.report.json").read_text())
+    assert report["status"] == "ok" and report["error"] is None and report["blend"] == str(out.resolve())
+    assert report["frames"] == {"loaded": 8, "posed": 8, "used": 8, "skipped": [], "skip_reasons": []}
+    assert report["poses"]["source"] == "given" and report["poses"]["scale_source"] == "metric capture"
+    assert report["mesh"]["faces"] == result["faces"] and report["mesh"]["export_bytes"] == ply.stat().st_size
+    assert set(report["timings_s"]) == {"import capture", "poses", "reconstruct", "save", "export", "total"}
+    assert report["settings"]["voxel_size"] == 0.16
+
 
 def _assert_one_line_error(run: subprocess.CompletedProcess, expected: str) -> None:
     assert run.returncode != 0
@@ -109,6 +136,9 @@ def test_batch_fails_on_an_empty_folder(tmp_path: Path) -> None:
     run = run_batch([str(empty), "--out", str(tmp_path / "scene.blend")], tmp_path)
     _assert_one_line_error(run, f"capture folder {empty} is empty")
     assert not (tmp_path / "scene.blend").exists()
+    report = json.loads((tmp_path / "scene.report.json").read_text())
+    assert report["status"] == "failed" and f"capture folder {empty} is empty" in report["error"]
+    assert report["failed_step"] == "import capture" and report["blend"] is None
 
 
 def test_batch_without_poses_and_skip_poses_fails(tmp_path: Path) -> None:
@@ -122,3 +152,35 @@ def test_batch_without_poses_and_skip_poses_fails(tmp_path: Path) -> None:
 def test_batch_fails_on_a_missing_capture(tmp_path: Path) -> None:
     run = run_batch([str(tmp_path / "nowhere"), "--out", str(tmp_path / "scene.blend")], tmp_path, timeout=60)
     _assert_one_line_error(run, "nowhere does not exist")
+
+
+@pytest.mark.slow
+def test_batch_of_a_good_and_a_bad_capture_reports_both_and_fails(tmp_path: Path) -> None:
+    """A folder of two captures: `good` (9 posed photos, one cut in half: skipped and reported) and
+    `bad` (photos that are all unreadable). The good one is finished after the bad one failed."""
+    rooms = tmp_path / "rooms"
+    photos = write_scannet(rooms / "good", ring_poses(9, radius=1.0), intrinsics(100.0, 160, 120), (160, 120), depth=False)
+    cut = photos[4]
+    cut.write_bytes(cut.read_bytes()[:400])
+    (rooms / "bad").mkdir(parents=True)
+    for i in range(3):
+        (rooms / "bad" / f"{i}.jpg").write_bytes(b"not a photo")
+    out = tmp_path / "out"
+    run = run_batch([str(rooms), "--out", str(out), "--export", ".ply", *TINY], tmp_path, timeout=600)
+    assert run.returncode == 1, run.stdout[-3000:] + run.stderr[-3000:]
+    assert f"error: {rooms / 'bad'}: " in run.stderr
+    assert "vortx batch: 1 of 2 captures reconstructed; failed: " in run.stdout
+
+    assert sorted(p.name for p in out.iterdir()) == ["bad.report.json", "good.blend", "good.ply", "good.report.json"]
+    bad = json.loads((out / "bad.report.json").read_text())
+    assert bad["status"] == "failed" and bad["failed_step"] == "import capture" and bad["blend"] is None
+    assert "0.jpg" in bad["error"] and "at least 2 are needed" in bad["error"]
+
+    good = json.loads((out / "good.report.json").read_text())
+    assert good["status"] == "ok" and good["error"] is None and good["blend"] == str((out / "good.blend").resolve())
+    assert good["frames"]["loaded"] == 8 and good["frames"]["used"] == 8 and good["frames"]["skipped"] == [cut.name]
+    (reason,) = good["frames"]["skip_reasons"]
+    assert f"{cut.name} (corrupt, truncated" in reason and reason in good["warnings"]
+    assert good["poses"]["source"] == "given" and good["poses"]["scale_source"] == "metric capture"
+    assert good["mesh"]["faces"] > 0 and good["mesh"]["export_bytes"] == (out / "good.ply").stat().st_size
+    assert good["timings_s"]["reconstruct"] > 0 and good["timings_s"]["total"] >= good["timings_s"]["reconstruct"]
