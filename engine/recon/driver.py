@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 from contextlib import contextmanager
-from typing import Any, Iterator, Optional
+from typing import Any, Iterator, Optional, Sequence
 
 import numpy as np
 import torch
@@ -21,6 +21,8 @@ from ..errors import VortxError
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
 from ..model.outputs import tsdf_from_logits
+from ..stereo.depth_maps import DepthMap
+from ..stereo.vertex_evidence import attach_evidence
 from .colour import ColourView, colour_vertices
 from .features import FeatureCache, encode_keyframes, keyframe_image_size
 from .tile_fusion import fuse_tile
@@ -143,7 +145,10 @@ def _run_planned(
     stats: dict[str, Any],
     progress: Optional[ProgressCallback],
     cancel: Optional[CancelToken],
+    stereo_maps: Optional[Sequence[DepthMap]] = None,
 ) -> ReconResult:
+    """stereo_maps: the run's stereo depth maps when it has them; they give the mesh its confidence layer
+    (where no map sees the surface, the network completed it)."""
     grid = plan.grid
     active = plan.active_tiles
     config = model.config
@@ -192,6 +197,9 @@ def _run_planned(
                            "surface: the weights may be untrained/random, or the poses are not metric and gravity-aligned")
     with timer.stage("colour"):
         mesh.colors = colour_mesh(mesh, plan, settings, progress, cancel)
+    if stereo_maps:
+        with timer.stage("evidence"):
+            stats["evidence"] = attach_evidence(mesh, stereo_maps, settings.voxel_size, network_completes=True, device=device)
     return ReconResult(mesh, plan.tiles, stats, None)
 
 

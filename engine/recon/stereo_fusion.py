@@ -17,8 +17,7 @@ from ..capture import Capture
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..stereo import StereoOptions, estimate_depth_maps, fuse_depth_maps, stereo_references
 from ..stereo.depth_maps import DepthMap
-from ..stereo.fused_tsdf import TRUNCATION_VOXELS
-from ..stereo.vertex_evidence import evidence_summary, vertex_evidence
+from ..stereo.vertex_evidence import attach_evidence
 from .memory import PeakMemory
 from .mesh import extract_mesh
 from .plan import ReconPlan, plan_reconstruction, posed_frames
@@ -120,9 +119,7 @@ def run_stereo_fusion(
             with timer.stage("colour"):
                 mesh.colors = colour_mesh(mesh, plan, settings, progress, cancel)
             with timer.stage("evidence"):  # how well each vertex was observed: the confidence layer
-                mesh.attributes = vertex_evidence(mesh.vertices, maps, TRUNCATION_VOXELS * settings.voxel_size,
-                                                  network_completes=False, device=device)
-            stats["evidence"] = evidence_summary(mesh.attributes)
+                stats["evidence"] = attach_evidence(mesh, maps, settings.voxel_size, network_completes=False, device=device)
     for tile in plan.active_tiles:
         tile.state = TileState.DONE if message is None else TileState.EMPTY
     stats["mesh"] = {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces))}

@@ -24,7 +24,9 @@ import numpy as np
 import torch
 
 from ..observation import COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE
+from ..mesh_io import Mesh
 from .depth_maps import DepthMap
+from .fused_tsdf import TRUNCATION_VOXELS
 
 VERTEX_CHUNK = 1 << 18  # vertices per projection batch: bounds the temporaries to a few MB per map
 MIN_DEPTH = 1e-3  # metres: points nearer the camera plane than this are behind it
@@ -89,6 +91,17 @@ def vertex_evidence(
     observations, confidence = observe_vertices(vertices, maps, truncation, device)
     completed = (observations == 0) if network_completes else np.zeros(len(observations), bool)
     return {OBSERVATIONS: observations, STEREO_CONFIDENCE: confidence, COMPLETED: completed.astype(np.float32)}
+
+
+def attach_evidence(
+    mesh: Mesh, maps: Sequence[DepthMap], voxel_size: float, network_completes: bool,
+    device: Optional[torch.device] = None,
+) -> dict[str, float]:
+    """Set `mesh.attributes` to the evidence of its vertices from `maps`, judged within the TSDF truncation
+    of a `voxel_size` grid (3 voxels, as the fusion and the ground truth); returns `evidence_summary`."""
+    mesh.attributes = {**mesh.attributes, **vertex_evidence(mesh.vertices, maps, TRUNCATION_VOXELS * voxel_size,
+                                                             network_completes, device)}
+    return evidence_summary(mesh.attributes)
 
 
 def evidence_summary(attributes: dict[str, np.ndarray]) -> dict[str, float]:

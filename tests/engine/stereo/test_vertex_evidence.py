@@ -9,7 +9,8 @@ import pytest
 
 from engine.stereo.depth_maps import DepthMap
 from engine.observation import COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE
-from engine.stereo.vertex_evidence import evidence_summary, observe_vertices, vertex_evidence
+from engine.mesh_io import Mesh
+from engine.stereo.vertex_evidence import attach_evidence, evidence_summary, observe_vertices, vertex_evidence
 
 PLANE_Z = 2.0  # world z of the plane; cameras at z = 0 look along +z (OpenCV axes, identity rotation)
 SIZE = (80, 60)  # (w, h) of each depth map
@@ -103,3 +104,14 @@ def test_completed_only_where_a_network_filled_in_unobserved_surface(three_views
     summary = evidence_summary(network)
     assert summary["unobserved"] == pytest.approx(1 / len(vertices), abs=1e-4)
     assert summary["completed"] == summary["unobserved"]
+
+
+def test_attach_evidence_sets_the_mesh_attributes_with_the_fusion_truncation(three_views) -> None:
+    """At 4 cm voxels the truncation is 12 cm: a vertex 10 cm off the plane is observed, 20 cm is not."""
+    vertices = np.float32([[0.3, 0.3, PLANE_Z - 0.10], [0.3, 0.3, PLANE_Z - 0.20]])
+    mesh = Mesh(vertices, np.int32([[0, 1, 1]]), attributes={"kept": np.float32([7, 8])})
+    summary = attach_evidence(mesh, three_views, voxel_size=0.04, network_completes=True)
+    np.testing.assert_array_equal(mesh.attributes[OBSERVATIONS], [3, 0])
+    np.testing.assert_array_equal(mesh.attributes[COMPLETED], [0, 1])
+    np.testing.assert_array_equal(mesh.attributes["kept"], [7, 8])
+    assert summary["seen_by_3_plus"] == 0.5 and summary["completed"] == 0.5
