@@ -1,12 +1,17 @@
 """`python -m engine bench [--quick] [--out bench.json]`: how fast and how big the pipeline is here.
 
-Runs the full reconstruction (official network widths, seeded random weights, 4 cm voxels,
+Runs the full VoRTX reconstruction (official network widths, seeded random weights, 4 cm voxels,
 320 x 240 images) on procedurally generated posed captures of box rooms, so no Blender and no data
 are needed; the numbers measure speed and memory, not quality. Reports end-to-end keyframes per
 second, wall and CPU seconds per stage, voxels per level and peak RSS; scaling with the views per
 tile (N = 20 / 40 / 60) and with the room size; the sparse 3D convolution against a dense Conv3d on
 the same volume (engine.sparse.bench); and the memory model of engine.recon.memory_estimate checked
 against the measured runs, then applied to a 10 x 10 x 3 m room at N = 60.
+
+The classical stereo method (the default) runs on the same captures and regions with its default
+settings, its stages reported separately (stereo depth, TSDF fusion, mesh, colour, evidence), and is
+checked against the cost budget of issue 11: within 2x the CPU time of VoRTX on the same capture
+(at the most views per tile measured there) and within VoRTX's peak memory + 1 GiB.
 """
 
 from __future__ import annotations
@@ -24,6 +29,9 @@ from pathlib import Path
 from typing import Any, Optional
 
 MB = 2**20
+STEREO_CPU_BUDGET = 2.0  # stereo fusion may take this many times VoRTX's CPU seconds on the same capture
+STEREO_MEMORY_BUDGET = 2**30  # ... and this many bytes more peak RSS
+STEREO_STAGES = ("stereo depth", "TSDF fusion", "mesh", "colour", "evidence")
 
 
 @dataclass(frozen=True)
@@ -87,20 +95,26 @@ def machine_info() -> dict[str, Any]:
     return info
 
 
-def run_case(case: Case, device: str, workdir: Path) -> dict[str, Any]:
-    from .recon import ReconSettings, reconstruct
-    from .recon.memory_estimate import estimate_memory
+def bench_capture(case: Case, workdir: Path) -> Any:
+    """The generated capture of `case` (made once per frame count in `workdir`), loaded."""
+    from .capture import load_capture
     from .recon.synthetic import make_synthetic_capture
 
     capture_dir = workdir / f"room_{case.frames}_frames"
     if not capture_dir.exists():
         make_synthetic_capture(capture_dir, room_size=RENDER_ROOM, frames=case.frames, image_size=IMAGE_SIZE,
                                radius=CAMERA_RADIUS, outward_deg=CAMERA_OUTWARD_DEG)
-    from .capture import load_capture
+    return load_capture(capture_dir)
 
-    capture = load_capture(capture_dir)
-    settings = ReconSettings(weights="random", views=case.views, device=device, image_long_side=max(IMAGE_SIZE),
-                             max_room_size=case.region)
+
+def run_case(case: Case, device: str, workdir: Path) -> dict[str, Any]:
+    """One VoRTX run (random weights of the official widths) of `case`."""
+    from .recon import ReconSettings, reconstruct
+    from .recon.memory_estimate import estimate_memory
+
+    capture = bench_capture(case, workdir)
+    settings = ReconSettings(method="vortx", weights="random", views=case.views, device=device,
+                             image_long_side=max(IMAGE_SIZE), max_room_size=case.region)
     result = reconstruct(capture, settings)
     stats = result.stats
     levels = stats["levels"]
@@ -130,6 +144,54 @@ def run_case(case: Case, device: str, workdir: Path) -> dict[str, Any]:
         "estimated_peak_bytes": estimate.total,
         "message": result.message,
     }
+
+
+def stereo_cases(cases: tuple[Case, ...]) -> list[Case]:
+    """One stereo run per capture and region (stereo has no views per tile): the case with the most views
+    of each, so the comparison is with VoRTX at its most expensive setting there."""
+    chosen: dict[tuple, Case] = {}
+    for case in cases:
+        key = (case.region, case.frames)
+        if key not in chosen or case.views > chosen[key].views:
+            chosen[key] = case
+    return list(chosen.values())
+
+
+def run_stereo_case(case: Case, device: str, workdir: Path) -> dict[str, Any]:
+    """One run of the classical stereo method (default settings) on `case`'s capture and region."""
+    from .recon import ReconSettings, reconstruct
+
+    capture = bench_capture(case, workdir)
+    result = reconstruct(capture, ReconSettings(method="stereo", device=device, max_room_size=case.region))
+    stats = result.stats
+    total = stats["timings_s"]["total"]
+    return {
+        "case": case.name,
+        "region_m": list(case.region),
+        "frames": case.frames,
+        "keyframes": stats["keyframes"],
+        "references": stats["stereo"]["references"],
+        "stereo_image_size": stats["stereo"]["image_size"],
+        "mesh_faces": stats.get("mesh", {}).get("faces", 0),
+        "timings_s": stats["timings_s"],
+        "cpu_timings_s": stats["cpu_timings_s"],
+        "keyframes_per_s": stats["keyframes"] / total if total else None,
+        "peak_rss_bytes": stats["memory"]["peak_rss_bytes"],
+        "start_rss_bytes": stats["memory"]["start_rss_bytes"],
+        "cuda_max_allocated_bytes": stats["memory"]["cuda_max_allocated_bytes"],
+        "message": result.message,
+    }
+
+
+def compare_with_vortx(stereo_run: dict[str, Any], vortx_runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The stereo run against the VoRTX run of the same case: CPU-time ratio, extra peak RSS, and whether
+    both stay within the budget (STEREO_CPU_BUDGET x the CPU time, + STEREO_MEMORY_BUDGET bytes)."""
+    vortx = next(r for r in vortx_runs if r["case"] == stereo_run["case"])
+    cpu_ratio = stereo_run["cpu_timings_s"]["total"] / vortx["cpu_timings_s"]["total"]
+    extra = stereo_run["peak_rss_bytes"] - vortx["peak_rss_bytes"]
+    return {"vortx_case": vortx["case"], "cpu_ratio": round(cpu_ratio, 3), "wall_ratio":
+            round(stereo_run["timings_s"]["total"] / vortx["timings_s"]["total"], 3), "extra_peak_rss_bytes": int(extra),
+            "within_budget": bool(cpu_ratio <= STEREO_CPU_BUDGET and extra <= STEREO_MEMORY_BUDGET)}
 
 
 def stage_sum(timings: dict[str, float], prefix: str) -> float:
@@ -171,6 +233,19 @@ def markdown(report: dict[str, Any]) -> str:
             f"| {t['total']:.1f} ({c['total']:.1f}) | {r['keyframes_per_s']:.2f} "
             f"| {r['peak_rss_bytes'] / MB:.0f} ({r['estimated_peak_bytes'] / MB:.0f}) |"
         )
+    if report.get("stereo_runs"):
+        lines += ["", "Stereo fusion (the default method), same captures and regions, default stereo settings; "
+                  f"budget: CPU time <= {STEREO_CPU_BUDGET:g}x VoRTX's, peak RSS <= VoRTX's + {STEREO_MEMORY_BUDGET / 2**30:g} GiB:", "",
+                  "| case | keyframes | references | " + " | ".join(f"{stage} s" for stage in STEREO_STAGES)
+                  + " | total s (CPU s) | keyframes/s | peak RSS MB | CPU vs VoRTX | extra RSS MB | within budget |",
+                  "|---" * (len(STEREO_STAGES) + 9) + "|"]
+        for r in report["stereo_runs"]:
+            t, c, v = r["timings_s"], r["cpu_timings_s"], r["versus_vortx"]
+            lines.append(
+                f"| {r['case']} | {r['keyframes']} | {r['references']} | " + " | ".join(f"{t.get(stage, 0):.1f}" for stage in STEREO_STAGES)
+                + f" | {t['total']:.1f} ({c['total']:.1f}) | {r['keyframes_per_s']:.2f} | {r['peak_rss_bytes'] / MB:.0f} "
+                f"| {v['cpu_ratio']:.2f}x | {v['extra_peak_rss_bytes'] / MB:+.0f} | {'yes' if v['within_budget'] else 'NO'} |"
+            )
     lines += ["", "| sparse vs dense 3^3 conv | voxels | kernel map s | sparse fwd s | dense fwd s | speed-up fwd | speed-up fwd+bwd |",
               "|---|---|---|---|---|---|---|"]
     for s in report["sparse_vs_dense"]:
@@ -200,6 +275,12 @@ def run(args: argparse.Namespace) -> int:
         for case in cases:
             print(f"running {case.name} ...", file=sys.stderr, flush=True)
             report["runs"].append(run_case(case, args.device, workdir))
+        report["stereo_runs"] = []
+        for case in stereo_cases(cases):
+            print(f"running stereo fusion on {case.name} ...", file=sys.stderr, flush=True)
+            run = run_stereo_case(case, args.device, workdir)
+            run["versus_vortx"] = compare_with_vortx(run, report["runs"])
+            report["stereo_runs"].append(run)
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     report["sparse_vs_dense"] = []

@@ -3,7 +3,8 @@ exercised end to end by tests/test_recon_driver.py)."""
 
 from __future__ import annotations
 
-from engine.bench import machine_info, markdown, projected_memory
+from engine.bench import (FULL_CASES, QUICK_CASES, compare_with_vortx, machine_info, markdown, projected_memory,
+                          stereo_cases)
 from engine.recon.memory_estimate import (CNN_BYTES_PER_VOXEL, box_room_surface_area, coarse_voxels, estimate_memory,
                                           keep_fraction_voxels, surface_band_voxels)
 
@@ -45,3 +46,35 @@ def test_report_table_and_projection():
     table = markdown({"machine": machine_info(), "runs": [run], "sparse_vs_dense": [sparse], "projected_memory": projection})
     assert "| N=20, 1 m room | 12 | 9 | 100 / 400 / 1600 | 1.0 | 0.8 | 2.0 | 0.3 | 4.0 (3.0) | 3.00 | 700 (650) |" in table
     assert "| 8x8x8, 4 ch, surface | 10 |" in table and "GiB" in table
+
+
+def test_stereo_runs_once_per_capture_against_vortx_at_its_most_views():
+    chosen = stereo_cases(FULL_CASES)
+    assert [c.name for c in chosen] == ["N=60, 2 m region", "N=20, 1.5 m region", "N=20, 3 m region"]
+    assert stereo_cases(QUICK_CASES) == list(QUICK_CASES)
+
+
+def _stereo_run(cpu_total: float, peak_mb: float) -> dict:
+    return {"case": "N=60, 2 m room", "keyframes": 64, "references": 64,
+            "timings_s": {"stereo depth": 30.0, "TSDF fusion": 1.5, "mesh": 0.2, "colour": 2.0, "evidence": 0.4, "total": 40.0},
+            "cpu_timings_s": {"total": cpu_total}, "keyframes_per_s": 1.6, "peak_rss_bytes": int(peak_mb * 2**20)}
+
+
+def test_stereo_budget_is_twice_the_cpu_time_and_one_gib_more_memory():
+    vortx = [{"case": "N=20, 2 m room", "cpu_timings_s": {"total": 10.0}, "timings_s": {"total": 8.0}, "peak_rss_bytes": 500 * 2**20},
+             {"case": "N=60, 2 m room", "cpu_timings_s": {"total": 46.0}, "timings_s": {"total": 34.0}, "peak_rss_bytes": 1100 * 2**20}]
+    inside = compare_with_vortx(_stereo_run(80.0, 1500), vortx)
+    assert inside == {"vortx_case": "N=60, 2 m room", "cpu_ratio": round(80 / 46, 3), "wall_ratio": round(40 / 34, 3),
+                      "extra_peak_rss_bytes": 400 * 2**20, "within_budget": True}
+    assert not compare_with_vortx(_stereo_run(93.0, 1500), vortx)["within_budget"]  # > 2x the CPU time
+    assert not compare_with_vortx(_stereo_run(80.0, 2200), vortx)["within_budget"]  # > 1 GiB more
+
+
+def test_report_table_shows_the_stereo_stages():
+    run = _stereo_run(80.0, 1500)
+    run["versus_vortx"] = {"cpu_ratio": 1.74, "extra_peak_rss_bytes": 400 * 2**20, "within_budget": True}
+    report = {"machine": machine_info(), "runs": [], "stereo_runs": [run], "sparse_vs_dense": [],
+              "projected_memory": {"room_m": [10, 10, 3], "views": 60, "keyframes": 500, "image_size": [640, 480]}}
+    table = markdown(report)
+    assert "| stereo depth s | TSDF fusion s | mesh s | colour s | evidence s |" in table
+    assert "| N=60, 2 m room | 64 | 64 | 30.0 | 1.5 | 0.2 | 2.0 | 0.4 | 40.0 (80.0) | 1.60 | 1500 | 1.74x | +400 | yes |" in table
