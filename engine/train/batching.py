@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 import torch
@@ -22,7 +22,8 @@ class TrainBatch:
     images (B, V, 3, H, W) RGB 0-255; depths (B, V, H, W) metres; K (B, V, 3, 3); poses (B, V, 4, 4)
     camera-to-crop-frame; origin (B, 3); crop_size (X, Y, Z) fine voxels; voxel_size (fine);
     tsdf (B, X, Y, Z) fine targets; occ[l] (B, X_l, Y_l, Z_l) for l = 0 coarse, 1 medium;
-    mask[l] for l = 0, 1, 2 (bool, supervised)."""
+    mask[l] for l = 0, 1, 2 (bool, supervised); stereo (per crop, StereoEvidence) and stereo_views
+    (B, V) when the model takes stereo evidence."""
 
     images: torch.Tensor
     depths: torch.Tensor
@@ -35,6 +36,8 @@ class TrainBatch:
     occ: list[torch.Tensor]
     mask: list[torch.Tensor]
     info: list[dict] = field(default_factory=list)
+    stereo: Optional[list] = None
+    stereo_views: Optional[torch.Tensor] = None
 
     @property
     def batch_size(self) -> int:
@@ -45,6 +48,8 @@ class TrainBatch:
         return TrainBatch(
             mv(self.images), mv(self.depths), mv(self.K), mv(self.poses), mv(self.origin), self.crop_size,
             self.voxel_size, mv(self.tsdf), [mv(o) for o in self.occ], [mv(m) for m in self.mask], self.info,
+            None if self.stereo is None else [e.to(device) for e in self.stereo],
+            None if self.stereo_views is None else mv(self.stereo_views),
         )
 
 
@@ -65,6 +70,8 @@ def collate(samples: Sequence[CropSample], crop_size: Sequence[int]) -> TrainBat
         occ=[torch.stack([s.targets.occ[l] for s in samples]) for l in range(2)],
         mask=[torch.stack([s.targets.mask[l] for s in samples]) for l in range(3)],
         info=[s.info for s in samples],
+        stereo=[s.stereo for s in samples] if samples[0].stereo is not None else None,
+        stereo_views=torch.stack([s.stereo_views for s in samples]) if samples[0].stereo is not None else None,
     )
 
 
@@ -116,7 +123,7 @@ class CropDataset:
     def room(self, i: int) -> RoomData:
         if i not in self._cache:
             src = self.sources[i]
-            self._cache[i] = src if isinstance(src, RoomData) else load_room(src, self.image_size)
+            self._cache[i] = src if isinstance(src, RoomData) else load_room(src, self.image_size, self.settings.stereo)
         return self._cache[i]
 
     def batch(self, room_ids: Sequence[int], rng: np.random.Generator) -> TrainBatch:

@@ -39,6 +39,7 @@ class TrainConfig:
     augment_mirror: bool = True
     augment_photometric: bool = True
     augment_noise: float = 0.0  # max std (0-255 units) of Gaussian sensor noise, applied with p = 0.5; 0 = off
+    augment_depth_scale: float = 0.1  # stereo evidence: half the maps scaled by U(1 -+ this) (FineRecon)
     phase1: PhaseConfig = field(default_factory=PhaseConfig)
     phase2: PhaseConfig = field(
         default_factory=lambda: PhaseConfig(lr=1e-4, freeze_backbone=False, use_proj_occ=True)
@@ -53,6 +54,11 @@ class TrainConfig:
     threads: int = 0  # torch.set_num_threads; 0 = leave as is
     max_minutes: float = 0.0  # stop (with a checkpoint) after this wall time; 0 = no limit
     base_dir: str = "."  # relative paths are resolved against this folder
+
+    @property
+    def uses_stereo(self) -> bool:
+        """The model takes stereo evidence (`model.stereo_evidence` set), so crops carry stereo maps."""
+        return self.model.get("stereo_evidence") is not None
 
     @property
     def total_steps(self) -> int:

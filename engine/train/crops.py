@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 import torch
@@ -31,6 +31,7 @@ import torch.nn.functional as F
 
 from ..geometry.view_selection import select_views, top_up_views
 from ..tsdf.targets import SEEN_LIMIT, occupancy_targets
+from ..model.stereo_evidence import StereoEvidence
 from .augmentation import apply_photometric, sample_photometric
 from .rooms import RoomData
 
@@ -43,6 +44,8 @@ class CropSettings:
     mirror: bool = True
     photometric: bool = True
     noise: float = 0.0
+    stereo: bool = False  # give the crop the room's stereo depth maps (the model takes stereo evidence)
+    depth_scale: float = 0.1  # FineRecon: half the stereo maps scaled by U(1 - s, 1 + s); 0 = off
 
 
 @dataclass
@@ -128,6 +131,8 @@ class CropSample:
     targets: CropTargets
     voxel_size: float  # fine voxel edge in metres (the room's ground-truth TSDF's)
     info: dict = field(default_factory=dict)
+    stereo: Optional[StereoEvidence] = None  # all the room's stereo maps, crop frame
+    stereo_views: Optional[torch.Tensor] = None  # (V,) int64 map of each view, -1 = none
 
 
 def make_crop(room: RoomData, settings: CropSettings, rng: np.random.Generator) -> CropSample:
@@ -165,6 +170,12 @@ def make_crop(room: RoomData, settings: CropSettings, rng: np.random.Generator) 
         depths = depths[:, :, ::-1]
         K[:, 0, 2] = W - K[:, 0, 2]  # pixel j covers [j, j+1): the flip maps u to W - u
         poses = poses @ np.diag([-1.0, 1.0, 1.0, 1.0])  # flip the camera x axis: det stays +1
+    stereo, stereo_views = None, None
+    if settings.stereo:
+        if room.stereo is None:
+            raise ValueError(f"room {room.name} was loaded without its stereo depth maps")
+        stereo = crop_stereo(room, A, mirror, settings.depth_scale, rng)
+        stereo_views = torch.from_numpy(room.stereo.map_of_frames(views))
     return CropSample(
         images=torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float(),
         depths=torch.from_numpy(np.ascontiguousarray(depths)).float(),
@@ -174,4 +185,27 @@ def make_crop(room: RoomData, settings: CropSettings, rng: np.random.Generator) 
         targets=targets,
         voxel_size=voxel,
         info={"room": room.name, "views": views.tolist(), "theta": theta, "mirror": mirror},
+        stereo=stereo,
+        stereo_views=stereo_views,
     )
+
+
+def crop_stereo(room: RoomData, A: np.ndarray, mirror: bool, depth_scale: float, rng: np.random.Generator) -> StereoEvidence:
+    """The room's stereo maps in the crop frame (world -> crop transform A, the crop's mirror), with
+    FineRecon's depth-scale augmentation: each map with p = 0.5 scaled by U(1 - s, 1 + s), which
+    teaches the network that stereo depth can be off by a few per cent, as on real photos."""
+    st = room.stereo
+    depth = st.depth.copy()
+    if depth_scale > 0:
+        scaled = rng.random(len(depth)) < 0.5
+        factors = rng.uniform(1 - depth_scale, 1 + depth_scale, len(depth))
+        depth[scaled] *= factors[scaled, None, None].astype(np.float32)
+    confidence, K = st.confidence, st.K.copy()
+    poses = A[None] @ room.poses[st.frames]
+    if mirror:
+        depth, confidence = depth[:, :, ::-1], confidence[:, :, ::-1]
+        K[:, 0, 2] = depth.shape[2] - K[:, 0, 2]
+        poses = poses @ np.diag([-1.0, 1.0, 1.0, 1.0])
+    return StereoEvidence(torch.from_numpy(np.ascontiguousarray(depth)).float(),
+                          torch.from_numpy(np.ascontiguousarray(confidence)).float(),
+                          torch.from_numpy(K).float(), torch.from_numpy(poses).float())

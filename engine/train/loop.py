@@ -86,7 +86,7 @@ class TrainingModule(nn.Module):
         from ..model.outputs import VortxBatch
 
         vb = VortxBatch(images=batch.images, K=batch.K, cam_to_world=batch.poses, origin=batch.origin,
-                        crop_shape=batch.crop_size)
+                        crop_shape=batch.crop_size, stereo=batch.stereo, stereo_views=batch.stereo_views)
         preds = self.net(vb)
         losses: dict[str, torch.Tensor] = {}
         stats: dict[str, float] = {}
@@ -280,7 +280,8 @@ class Trainer:
                 raise VortxError(f"no rooms found in {cfg.rooms}; render some with `python -m engine synth`")
             dataset = CropDataset(rooms, CropSettings(
                 tuple(cfg.crop_size), cfg.n_views, cfg.augment_rotate, cfg.augment_mirror, cfg.augment_photometric,
-                cfg.augment_noise), image_size=cfg.image_size)
+                cfg.augment_noise, stereo=cfg.uses_stereo, depth_scale=cfg.augment_depth_scale),
+                image_size=cfg.image_size)
         self.dataset = dataset
         self.sampler = RoomSampler(len(dataset), cfg.seed, self.dist.rank, self.dist.world_size)
         if net is None:

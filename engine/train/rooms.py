@@ -19,6 +19,7 @@ from ..errors import VortxError
 from ..geometry.cameras import scale_intrinsics
 from ..geometry.view_selection import select_keyframes
 from ..tsdf.targets import SEEN_LIMIT
+from .room_stereo import RoomStereo, load_or_compute_room_stereo
 
 
 @dataclass
@@ -27,7 +28,8 @@ class RoomData:
 
     images (F, H, W, 3) uint8 RGB, depths (F, H, W) float32 metres (0 = none), K (F, 3, 3) in
     pixels of these images, poses (F, 4, 4) camera-to-world (OpenCV axes), tsdf (X, Y, Z) float32
-    with the spec's sign convention, tsdf_origin (3,) world position of voxel (0, 0, 0)."""
+    with the spec's sign convention, tsdf_origin (3,) world position of voxel (0, 0, 0); stereo:
+    the room's plane-sweep depth maps (room_stereo.py) when the model takes stereo evidence."""
 
     name: str
     images: np.ndarray
@@ -38,6 +40,7 @@ class RoomData:
     tsdf_origin: np.ndarray
     voxel_size: float = 0.04
     keyframes: Optional[np.ndarray] = None
+    stereo: Optional[RoomStereo] = None
     _candidates: Optional[np.ndarray] = field(default=None, repr=False)
 
     def __post_init__(self):
@@ -56,8 +59,9 @@ class RoomData:
         return self._candidates
 
 
-def load_room(room: Path, image_size: tuple[int, int]) -> RoomData:
-    """Load a rendered room at training resolution `image_size` = (W, H)."""
+def load_room(room: Path, image_size: tuple[int, int], stereo: bool = False) -> RoomData:
+    """Load a rendered room at training resolution `image_size` = (W, H); with `stereo`, also its
+    stereo depth maps (computed and cached on first use)."""
     import cv2
 
     from ..capture import load_capture, load_depth, load_image
@@ -92,4 +96,5 @@ def load_room(room: Path, image_size: tuple[int, int]) -> RoomData:
         tsdf=volume.tsdf.astype(np.float32),
         tsdf_origin=np.asarray(volume.origin, np.float64),
         voxel_size=float(volume.voxel_size),
+        stereo=load_or_compute_room_stereo(room, frames=frames) if stereo else None,
     )
