@@ -3,7 +3,8 @@
 For every held-out room (rendered, never used in training): reconstruct it with `engine.recon`
 from its colour frames and poses only, then the Atlas metrics (`engine.eval.evaluate_mesh`, trimmed
 to the observed ground-truth voxels) against `mesh_gt.ply`; the plain room box fitted to the ground
-truth (`engine.eval.room_box_from_tsdf`) is measured the same way as the floor.
+truth (`engine.eval.room_box_from_tsdf`) is measured the same way as the floor. A weights entry
+whose path is `stereo` scores the classical stereo-fusion method (no network) beside them.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from ..errors import VortxError
 
 DEPTH_EVERY = 4  # frames for the depth metrics: every 4th (10 of a rendered room's 40)
 DEPTH_KEYS = ("AbsRel", "AbsDiff", "r1", "complete")
+STEREO_METHOD = "stereo"  # a --weights PATH that means "the classical stereo method"
 
 
 def evaluate_rooms(
@@ -30,7 +32,8 @@ def evaluate_rooms(
     out_dir: Optional[Path] = None,
     box: bool = True,
 ) -> dict:
-    """weights: label -> weights path. Returns {label: {room: metrics dict}, ...} plus means."""
+    """weights: label -> weights path, or STEREO_METHOD for classical stereo fusion.
+    Returns {label: {room: metrics dict}, ...} plus means."""
     from ..capture import load_capture
     from ..eval.depth_metrics import capture_depth_views, mesh_depth_metrics
     from ..eval.mesh_metrics import evaluate_mesh
@@ -54,7 +57,10 @@ def evaluate_rooms(
             return {k: scores[k] for k in DEPTH_KEYS}
 
         for label, path in weights.items():
-            settings = ReconSettings(weights=str(path) if path else None, **(recon_overrides or {}))
+            if path == STEREO_METHOD:
+                settings = ReconSettings(method="stereo", **(recon_overrides or {}))
+            else:  # the method is explicit: stereo is the product's default
+                settings = ReconSettings(method="vortx", weights=str(path) if path else None, **(recon_overrides or {}))
             t0 = time.time()
             res = reconstruct(capture, settings)
             m = evaluate_mesh(res.mesh, gt, observed=volume).as_dict() | depth_scores(res.mesh)
@@ -141,7 +147,8 @@ def save_json(obj: dict, path: Path) -> None:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rooms", nargs="+", required=True, help="held-out room folders, or folders holding them")
-    parser.add_argument("--weights", nargs="+", required=True, help="LABEL=PATH (.safetensors); PATH may be 'random'")
+    parser.add_argument("--weights", nargs="+", required=True,
+                        help="LABEL=PATH (.safetensors); PATH may be 'random', or 'stereo' for classical stereo fusion")
     parser.add_argument("--out", default="runs/eval", help="folder for metrics.json and the predicted meshes")
     parser.add_argument("--image-size", type=int, default=128, help="reconstruction image long side (pixels)")
     parser.add_argument("--views", type=int, default=12, help="views per tile")

@@ -29,6 +29,16 @@ EVIDENCE_CHANNELS = 3  # projective signed distance, confidence, valid flag
 POINT_CHUNK = 16384  # voxels per fused-TSDF pass: bounds the (chunk, maps) float64 work arrays
 OCCUPANCY_PRIOR_GAIN = 20.0  # logit per unit of |tsdf|: confident, but a trained head can overrule it
 NEAR_SURFACE = 0.999  # |fused tsdf| below this = within the truncation band of some view's depth
+MAX_FINE_LOGIT = float(np.arctanh(0.999))
+# A predicted fine TSDF at or above this means "unobserved", as the +1 of the training targets: the
+# mesh of an evidence network leaves those voxels out, as classical fusion leaves out the voxels no
+# depth map reached (a free voxel next to an unobserved one is not a surface).
+UNOBSERVED_TSDF = 1.0
+
+
+def observed_by_prediction(tsdf: torch.Tensor) -> torch.Tensor:
+    """(N,) bool: fine voxels whose predicted TSDF (N,) says observed (< UNOBSERVED_TSDF)."""
+    return tsdf < UNOBSERVED_TSDF
 
 
 @dataclass
@@ -133,11 +143,14 @@ def fused_tsdf(points: torch.Tensor, evidence: StereoEvidence, trunc: float) -> 
 
 def prior_logits(level_is_fine: bool, stereo_tsdf: torch.Tensor) -> torch.Tensor:
     """The logits an untrained evidence model starts from (its heads' last layers are zero): at the
-    fine level the logit whose TSDF (1.05 tanh) is the fused TSDF; above it an occupancy logit that
-    keeps every voxel near an observed surface (|tsdf| < 1) and prunes free and unobserved space."""
+    fine level the logit whose TSDF (1.05 tanh) is the fused TSDF, and for unobserved voxels (+1) the
+    largest one (TSDF 1.049 >= UNOBSERVED_TSDF: no surface there, see `observed_by_prediction`);
+    above it an occupancy logit that keeps every voxel near an observed surface (|tsdf| < 1) and
+    prunes free and unobserved space."""
     if level_is_fine:
         from .outputs import TSDF_SCALE
 
-        return torch.atanh((stereo_tsdf / TSDF_SCALE).clamp(-0.999, 0.999))
+        logits = torch.atanh((stereo_tsdf / TSDF_SCALE).clamp(-0.999, 0.999))
+        return torch.where(stereo_tsdf >= 1, torch.full_like(logits, MAX_FINE_LOGIT), logits)
     return OCCUPANCY_PRIOR_GAIN * (NEAR_SURFACE - stereo_tsdf.abs())
 

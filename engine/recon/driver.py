@@ -21,11 +21,12 @@ from ..errors import VortxError
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
 from ..model.outputs import tsdf_from_logits
+from ..model.stereo_evidence import observed_by_prediction
 from ..stereo.depth_maps import DepthMap
 from ..stereo.vertex_evidence import attach_evidence
 from .colour import ColourView, colour_vertices
 from .features import FeatureCache, encode_keyframes, keyframe_image_size
-from .tile_fusion import fuse_tile
+from .tile_fusion import SceneStereo, fuse_tile
 from ..geometry.cameras import scale_intrinsics
 from .images import load_resized, resized_size
 from .memory import PeakMemory
@@ -124,7 +125,16 @@ def run_reconstruction(
     with PeakMemory(device) as memory:
         with timer.stage("keyframes"):
             plan = plan or plan_reconstruction(capture, settings, progress, cancel)
-        result = _run_planned(model, plan, settings, device, timer, stats, progress, cancel)
+        stereo_maps = None
+        if getattr(model, "uses_stereo", False):  # weights with stereo evidence: the depth maps, once
+            from .stereo_fusion import stereo_depth_maps, stereo_options
+
+            with timer.stage("stereo depth"):
+                stereo_maps = stereo_depth_maps(capture, plan, stereo_options(settings, device), progress, cancel)
+            stats["stereo"] = {"references": len(stereo_maps),
+                               "completeness_mean": round(float(np.mean([m.completeness for m in stereo_maps])), 4)
+                               if stereo_maps else 0.0}
+        result = _run_planned(model, plan, settings, device, timer, stats, progress, cancel, stereo_maps)
     stats["timings_s"] = {**{k: round(v, 4) for k, v in timer.seconds.items()}, "total": round(time.perf_counter() - started, 4)}
     stats["cpu_timings_s"] = {**{k: round(v, 4) for k, v in timer.cpu_seconds.items()},
                               "total": round(time.process_time() - cpu_started, 4)}
@@ -178,7 +188,12 @@ def _run_planned(
                                  settings.feature_chunk, settings.fp16_features, progress, cancel)
     stats["feature_cache_bytes"] = cache.nbytes
 
-    final, message = _run_levels(model, plan, settings, cache, device, timer, stats, progress, cancel)
+    stereo = None
+    if getattr(model, "uses_stereo", False):
+        if not stereo_maps:
+            raise VortxError("these weights take stereo depth, and stereo found no depth map for this capture")
+        stereo = SceneStereo.from_depth_maps(stereo_maps, len(plan.keyframes), device)
+    final, message = _run_levels(model, plan, settings, cache, device, timer, stats, progress, cancel, stereo)
     del cache
     if final is None:
         for tile in plan.tiles:
@@ -188,7 +203,11 @@ def _run_planned(
     report(progress, "mesh", 0, 1)
     with timer.stage("mesh"):
         tsdf = tsdf_from_logits(final.logits.reshape(-1).float()).cpu().numpy()
-        mesh = extract_mesh(final.coords[:, 1:].cpu().numpy(), tsdf, grid.origin, settings.voxel_size)
+        voxels = final.coords[:, 1:].cpu().numpy()
+        if stereo is not None:  # evidence weights predict +1 for unobserved voxels: no surface there
+            keep = observed_by_prediction(torch.from_numpy(tsdf)).numpy()
+            voxels, tsdf = voxels[keep], tsdf[keep]
+        mesh = extract_mesh(voxels, tsdf, grid.origin, settings.voxel_size)
     report(progress, "mesh", 1, 1)
     stats["mesh"] = {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces))}
     if len(mesh.faces) == 0:
@@ -224,6 +243,7 @@ def _fuse_level(
     device: torch.device,
     progress: Optional[ProgressCallback],
     cancel: Optional[CancelToken],
+    stereo: Optional[SceneStereo] = None,
 ) -> torch.Tensor:
     """Fused features (N, C_level) on the CPU, row-aligned with `coords` (N, 4), tile by tile.
 
@@ -251,7 +271,8 @@ def _fuse_level(
             tile.state = TileState.EMPTY  # everything in it was pruned at the level above
             continue
         tile.state = TileState.RUNNING
-        fused[rows] = fuse_tile(model, level, points[rows], cache, tile.views, device, settings.fusion_chunk, cancel)
+        fused[rows] = fuse_tile(model, level, points[rows], cache, tile.views, device, settings.fusion_chunk, cancel,
+                                stereo)
         tile.state = TileState.DONE if last_level else TileState.PENDING
     report(progress, stage, len(active), len(active))
     return fused
@@ -267,6 +288,7 @@ def _run_levels(
     stats: dict[str, Any],
     progress: Optional[ProgressCallback],
     cancel: Optional[CancelToken],
+    stereo: Optional[SceneStereo] = None,
 ) -> tuple[Optional[Any], Optional[str]]:
     """Per level: fuse tile by tile, then ONE 3D CNN over all tiles' voxels (no seams), prune and
     upsample. -> (fine LevelOutput, None), or (None, message) when pruning leaves nothing."""
@@ -276,12 +298,16 @@ def _run_levels(
         voxel = settings.voxel_size * scale
         label = level_label(voxel)
         with timer.stage(f"fusion {label}"):
-            fused = _fuse_level(model, level, coords, plan, cache, settings, device, progress, cancel)
+            fused = _fuse_level(model, level, coords, plan, cache, settings, device, progress, cancel, stereo)
+            stereo_tsdf = None
+            if stereo is not None:  # the fused stereo TSDF of this level's voxels: a 3D CNN input
+                points = torch.as_tensor(plan.grid.origin, dtype=torch.float32) + coords[:, 1:].cpu().float() * voxel
+                stereo_tsdf = model.stereo_tsdf(level, points.to(device), stereo.maps)
         check(cancel)
         cnn_stage = f"3D CNN {label}"
         report(progress, cnn_stage, 0, 1)
         with timer.stage(cnn_stage), torch.inference_mode():
-            out = model.level_step(level, coords.to(device), fused.to(device), previous)
+            out = model.level_step(level, coords.to(device), fused.to(device), previous, stereo_tsdf)
             del fused
             occupied = int((out.logits.reshape(-1) > 0).sum())
             stats["levels"].append({"label": label, "voxel_size": voxel, "voxels": int(len(coords)), "occupied": occupied})
