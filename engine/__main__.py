@@ -23,7 +23,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": (".train.cli", "train VoRTX from a config file"),
     "eval": (".eval.cli", "evaluate a predicted mesh against ground truth (Atlas metrics)"),
     "eval-weights": (".eval.heldout", "reconstruct held-out rendered rooms with trained weights and score them"),
-    "eval-methods": (".eval.methods", "reconstruct held-out rendered rooms with each method (stereo, VoRTX) and score them"),
 }
 
 
