@@ -1,18 +1,21 @@
 """`make demo`: the whole product on the bundled sample capture, checked against the sample's truth.
 
-    .venv/bin/python scripts/demo.py [--weights PATH|random] [--device cpu|cuda] [--sample samples/demo_room]
+    .venv/bin/python scripts/demo.py [--method stereo|vortx] [--weights PATH|random] [--device cpu|cuda]
+                                     [--sample samples/demo_room] [--no-compare]
 
 1. Runs scripts/vortx_batch.py on the sample's photos only (samples/demo_room/images): Import
-   Capture, Estimate Poses (structure from motion, gravity, scale from the 1.5 m camera height),
-   Reconstruct with the default weights -> out/demo.blend and out/demo.ply.
+   Capture, Estimate Poses (structure from motion, gravity, scale from the floor and the 1.5 m
+   camera height), Reconstruct with the default method -> out/demo.blend and out/demo.ply.
 2. Pose error: the estimated cameras (read back from out/demo.blend) against truth/pose, after the
    similarity (Sim(3)) that best maps the estimated camera centres onto the true ones; SfM knows
    the world only up to such a transform.
 3. out/demo.png: a capture photo beside a Workbench render (vertex colours) of the mesh from that
    photo's estimated camera, at the photo's resolution.
-4. F-score against truth/mesh_gt.ply: the mesh is moved into the truth frame with the same Sim(3)
-   first, then scored with the Atlas metrics (5 cm threshold), trimmed to the space the truth TSDF
-   observed.
+4. The other method (`engine reconstruct`) on the same estimated poses (out/demo_posed), unless
+   --no-compare.
+5. F-scores against truth/mesh_gt.ply, side by side with a plain room box: each mesh is moved into
+   the truth frame with the same Sim(3) first, then scored with the Atlas metrics (5 cm threshold),
+   trimmed to the space the truth TSDF observed.
 """
 
 from __future__ import annotations
@@ -30,9 +33,11 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "scripts"))
 
+from engine.capture.writers import write_scannet  # noqa: E402
 from engine.eval import evaluate_mesh, room_box_from_tsdf  # noqa: E402
 from engine.mesh_io import Mesh, read_ply  # noqa: E402
 from engine.poses import Similarity, pose_errors, umeyama  # noqa: E402
+from engine.recon.settings import METHODS, ReconSettings  # noqa: E402
 from engine.tsdf.volume import TsdfVolume  # noqa: E402
 
 BATCH = REPO / "scripts" / "vortx_batch.py"
@@ -54,10 +59,19 @@ def run_batch(images: Path, blend: Path, ply: Path, extra: Sequence[str]) -> Non
         raise DemoError("the batch run failed (its error is above)")
 
 
-def read_capture_cameras(blend: Path, render_to: Path) -> tuple[dict[str, np.ndarray], str]:
+def run_reconstruct(capture: Path, mesh: Path, extra: Sequence[str]) -> None:
+    """`python -m engine reconstruct` in its own process, as a user runs it."""
+    command = [sys.executable, "-m", "engine", "reconstruct", str(capture), "--out", str(mesh), *extra]
+    say("running " + " ".join(command[1:]))
+    if subprocess.run(command, cwd=REPO).returncode != 0:
+        raise DemoError(f"the reconstruction of {capture} failed (its error is above)")
+
+
+def read_capture_cameras(blend: Path, render_to: Path, posed_dir: Path) -> tuple[dict[str, np.ndarray], str]:
     """Open the batch's .blend: return {photo stem: estimated camera-to-world} and render the mesh
     from the middle capture camera (Workbench, vertex colours, the photo's resolution) into
-    `render_to`. Returns also the rendered photo's path."""
+    `render_to`. Returns also the rendered photo's path. The posed capture is written to `posed_dir`
+    (ScanNet layout), so the other methods are scored on exactly the same poses."""
     import bpy
     from vortx_batch import vortx_extension
 
@@ -68,6 +82,7 @@ def read_capture_cameras(blend: Path, render_to: Path) -> tuple[dict[str, np.nda
         if capture is None or not capture.posed_frames:
             raise DemoError(f"{blend} has no posed capture cameras")
         estimated = {Path(f.image_path).stem: f.pose for f in capture.posed_frames}
+        write_scannet(capture, posed_dir, overwrite=True)
         cameras = sorted((o for o in scene.objects if addon.vortx_blender.cameras.is_capture_camera(o)),
                          key=lambda o: int(o[addon.vortx_blender.cameras.PROP_FRAME]))
         camera = cameras[len(cameras) // 2]
@@ -97,7 +112,7 @@ def true_poses(truth: Path, stems: Sequence[str]) -> dict[str, np.ndarray]:
     return {s: np.loadtxt(truth / "pose" / f"{s}.txt").reshape(4, 4) for s in stems if (truth / "pose" / f"{s}.txt").is_file()}
 
 
-def side_by_side(photo: Path, render: Path, out: Path) -> None:
+def side_by_side(photo: Path, render: Path, out: Path, label: str) -> None:
     import cv2
 
     left, right = cv2.imread(str(photo)), cv2.imread(str(render))
@@ -107,7 +122,7 @@ def side_by_side(photo: Path, render: Path, out: Path) -> None:
         raise DemoError(f"render {right.shape[1]}x{right.shape[0]} does not match photo {left.shape[1]}x{left.shape[0]}")
     gap = np.full((left.shape[0], 4, 3), 255, np.uint8)
     picture = np.concatenate([left, gap, right], axis=1)
-    for text, x in (("photo", 6), ("VoRTX mesh", left.shape[1] + 10)):
+    for text, x in (("photo", 6), (label, left.shape[1] + 10)):
         cv2.putText(picture, text, (x, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
     if not cv2.imwrite(str(out), picture):
         raise DemoError(f"cannot write {out}")
@@ -125,6 +140,10 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser.add_argument("--out-dir", type=Path, default=REPO / "out")
     parser.add_argument("--weights", help="weights file or 'random' (default: the shipped weights/vortx-default.safetensors)")
     parser.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    parser.add_argument("--method", choices=METHODS, default=ReconSettings().method,
+                        help="method of the main run (default: the product's default, %(default)s)")
+    parser.add_argument("--no-compare", dest="compare", action="store_false",
+                        help="skip reconstructing with the other method for the side-by-side table")
     args = parser.parse_args(argv)
 
     images, truth, out = args.sample / "images", args.sample / "truth", args.out_dir.resolve()
@@ -132,20 +151,21 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     # uses nor touches the preferences and extensions of the user's own Blender.
     os.environ.setdefault("BLENDER_USER_RESOURCES", str(out / "blender-user"))
     blend, ply, render, picture = out / "demo.blend", out / "demo.ply", out / "demo_render.png", out / "demo.png"
+    posed_dir = out / "demo_posed"
     try:
         if not images.is_dir() or not (truth / "mesh_gt.ply").is_file():
             raise DemoError(f"the demo sample is incomplete at {args.sample}: regenerate it with scripts/make_demo_sample.py")
-        if args.weights is None:
+        if args.weights is None and (args.method == "vortx" or args.compare):
             from engine.model.weights import DEFAULT_WEIGHTS
 
             if not DEFAULT_WEIGHTS.is_file():
                 raise DemoError(f"the default weights are not in the checkout yet ({DEFAULT_WEIGHTS.relative_to(REPO)}); "
                                 "`scripts/demo.py --weights random` runs every stage with a random network (meaningless mesh)")
         out.mkdir(parents=True, exist_ok=True)
-        extra = ["--device", args.device] + (["--weights", args.weights] if args.weights else [])
+        extra = ["--method", args.method, "--device", args.device] + (["--weights", args.weights] if args.weights else [])
         run_batch(images, blend, ply, extra)
 
-        estimated, photo = read_capture_cameras(blend, render)
+        estimated, photo = read_capture_cameras(blend, render, posed_dir)
         truths = true_poses(truth, sorted(estimated))
         stems = sorted(truths)
         if len(stems) < 3:
@@ -159,18 +179,26 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             f"(max {errors['rotation_deg_max']:.2f}), position error mean {100 * errors['position_mean']:.1f} cm "
             f"(max {100 * errors['position_max']:.1f} cm)")
 
-        side_by_side(Path(photo), render, picture)
+        side_by_side(Path(photo), render, picture, f"{args.method} mesh")
         say(f"wrote {picture} ({Path(photo).name} beside a Workbench render of the mesh from its estimated camera)")
 
         gt_mesh, gt_volume = read_ply(truth / "mesh_gt.ply"), TsdfVolume.load(truth / "tsdf_gt.npz")
-        metrics = evaluate_mesh(aligned(read_ply(ply), sim), gt_mesh, gt_volume)
-        say(f"mesh vs truth (mesh moved into the truth frame by the camera-centre Sim(3), both trimmed to the space the "
-            f"truth observed): F-score {metrics.fscore:.3f} at 5 cm (precision {metrics.prec:.3f}, recall {metrics.recall:.3f}; "
-            f"accuracy {100 * metrics.acc:.1f} cm, completeness {100 * metrics.comp:.1f} cm)")
+        rows = [(f"{args.method} (default method, the batch run above)", evaluate_mesh(aligned(read_ply(ply), sim), gt_mesh, gt_volume))]
+        if args.compare:
+            other = "vortx" if args.method == "stereo" else "stereo"
+            other_ply = out / f"demo_{other}.ply"
+            run_reconstruct(posed_dir, other_ply, ["--method", other, "--device", args.device]
+                            + (["--weights", args.weights] if args.weights and other == "vortx" else []))
+            label = "vortx (shipped appearance-only weights)" if other == "vortx" else "stereo (classical fusion)"
+            rows.append((label, evaluate_mesh(aligned(read_ply(other_ply), sim), gt_mesh, gt_volume)))
         # The metric's floor: a plain box fitted to the true room, scored the same way.
-        box = evaluate_mesh(room_box_from_tsdf(gt_volume), gt_mesh, gt_volume)
-        say(f"baseline, a plain room box fitted to the true walls, measured the same way: F-score {box.fscore:.3f} "
-            f"(precision {box.prec:.3f}, recall {box.recall:.3f})")
+        rows.append(("room box fitted to the true walls (baseline)", evaluate_mesh(room_box_from_tsdf(gt_volume), gt_mesh, gt_volume)))
+        say("meshes vs truth (moved into the truth frame by the camera-centre Sim(3), trimmed to the space the truth "
+            "observed; F-score at 5 cm):")
+        say(f"  {'method':<48} {'F':>6} {'prec':>6} {'recall':>6} {'acc cm':>7} {'comp cm':>8}")
+        for name, m in rows:
+            say(f"  {name:<48} {m.fscore:6.3f} {m.prec:6.3f} {m.recall:6.3f} {100 * m.acc:7.1f} {100 * m.comp:8.1f}")
+        say(f"F-score {rows[0][1].fscore:.3f} for the default method against {rows[-1][1].fscore:.3f} for the room box")
         say(f"outputs: {blend}, {ply}, {picture}")
     except DemoError as error:
         print(f"error: {error}", file=sys.stderr)

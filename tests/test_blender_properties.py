@@ -63,6 +63,13 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
         "min_piece_faces": 50,
         "min_piece_fraction": 0.02,
         "target_faces": 300000,
+        "method": "VORTX",
+        "stereo_image_size": 240,
+        "stereo_views": 50,
+        "stereo_planes": 96,
+        "stereo_sources": 6,
+        "stereo_min_ncc": 0.4,
+        "stereo_consistency": 1,
     }
     settings = empty_scene.vortx
     for name, value in values.items():

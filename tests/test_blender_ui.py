@@ -14,7 +14,7 @@ from types import SimpleNamespace
 import pytest
 
 PANELS = ("VORTX_PT_capture", "VORTX_PT_pose_settings", "VORTX_PT_reconstruction", "VORTX_PT_model", "VORTX_PT_tiles",
-          "VORTX_PT_result", "VORTX_PT_advanced")
+          "VORTX_PT_result", "VORTX_PT_advanced", "VORTX_PT_stereo")
 
 
 class RecordingLayout:
@@ -144,7 +144,9 @@ def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
 @pytest.mark.parametrize(
     "panel, expected",
     [
-        ("VORTX_PT_reconstruction", ["voxel_size", "view_count", "tile_size", "result_mode"]),
+        ("VORTX_PT_reconstruction", ["method", "voxel_size", "result_mode"]),
+        ("VORTX_PT_stereo", ["stereo_image_size", "stereo_views", "stereo_planes", "stereo_sources", "stereo_min_ncc",
+                             "stereo_consistency"]),
         ("VORTX_PT_pose_settings", ["sfm_matcher", "sfm_max_image_side", "camera_height"]),
         ("VORTX_PT_model", ["weights_source", "device", "seed"]),
         ("VORTX_PT_tiles", ["show_tiles"]),

@@ -92,9 +92,11 @@ def draw_reconstruction(layout: Any, settings: Any, job: Optional[Job]) -> None:
     if job is not None and job.title in RECONSTRUCTION_JOBS:
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
     _settings_layout(layout)
+    layout.prop(settings, "method")
     layout.prop(settings, "voxel_size")
-    layout.prop(settings, "view_count")
-    layout.prop(settings, "tile_size")
+    if settings.method == "VORTX":  # tiles and views are the network's; stereo fuses the whole scene at once
+        layout.prop(settings, "view_count")
+        layout.prop(settings, "tile_size")
     layout.prop(settings, "result_mode")
 
 
@@ -132,15 +134,24 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
     row.operator("vortx.export_result", icon="EXPORT")
 
 
-# Reconstruction settings laid out in the Reconstruction and Model panels; every other ReconSettings
-# field offered to Blender appears under Advanced by itself, in declaration order.
-DRAWN_ELSEWHERE = ("voxel_size", "view_count", "tile_size", "device", "seed")
+# Reconstruction settings laid out in the Reconstruction and Model panels; the stereo method's
+# settings (stereo_*) appear in the Stereo panel and every other ReconSettings field offered to
+# Blender under Advanced, each by itself in declaration order.
+DRAWN_ELSEWHERE = ("method", "voxel_size", "view_count", "tile_size", "device", "seed")
+STEREO_PREFIX = "stereo_"
+
+
+def draw_stereo_settings(layout: Any, settings: Any) -> None:
+    _settings_layout(layout)
+    for name in recon_property_names():
+        if name.startswith(STEREO_PREFIX):
+            layout.prop(settings, name)
 
 
 def draw_advanced_settings(layout: Any, settings: Any) -> None:
     _settings_layout(layout)
     for name in recon_property_names():
-        if name not in DRAWN_ELSEWHERE:
+        if name not in DRAWN_ELSEWHERE and not name.startswith(STEREO_PREFIX):
             layout.prop(settings, name)
 
 
@@ -195,6 +206,15 @@ class VORTX_PT_model(_ReconstructionChild):
         draw_model_settings(self.layout, context.scene.vortx)
 
 
+class VORTX_PT_stereo(_ReconstructionChild):
+    bl_idname = "VORTX_PT_stereo"
+    bl_label = "Stereo"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context: bpy.types.Context) -> None:
+        draw_stereo_settings(self.layout, context.scene.vortx)
+
+
 class VORTX_PT_tiles(_ReconstructionChild):
     bl_idname = "VORTX_PT_tiles"
     bl_label = "Tiles"
@@ -225,6 +245,7 @@ classes = (
     VORTX_PT_pose_settings,
     VORTX_PT_reconstruction,
     VORTX_PT_model,
+    VORTX_PT_stereo,
     VORTX_PT_tiles,
     VORTX_PT_result,
     VORTX_PT_advanced,

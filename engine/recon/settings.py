@@ -13,6 +13,7 @@ from dataclasses import MISSING, Field, asdict, dataclass, field, fields
 from typing import Any, Optional
 
 from ..errors import VortxError
+from ..stereo.options import StereoOptions  # the stereo defaults live with the stereo code
 
 # Each level is twice as coarse as the next: coarse / medium / fine = 4x / 2x / 1x the finest voxel.
 LEVEL_SCALES: tuple[int, int, int] = (4, 2, 1)
@@ -112,22 +113,22 @@ class ReconSettings:
 
     # Plane-sweep stereo (engine/stereo), the 'stereo' method's depth maps.
     stereo_image_size: int = setting(
-        160, "long side in pixels of the photos matched by stereo (larger: finer depth, ~4x the time per 2x)",
+        StereoOptions.long_side, "long side in pixels of the photos matched by stereo (larger: finer depth, ~4x the time per 2x)",
         (CLI, BLENDER), min=32, max=2048, label="Stereo Image Size")
     stereo_views: int = setting(
-        100, "keyframes that get a stereo depth map (evenly spaced when there are more)",
+        StereoOptions.max_references, "keyframes that get a stereo depth map (evenly spaced when there are more)",
         (CLI, BLENDER), min=1, max=2000, label="Stereo Views")
     stereo_planes: int = setting(
-        64, "depth hypotheses per pixel, uniform in inverse depth (a finer second sweep refines each pixel)",
+        StereoOptions.planes, "depth hypotheses per pixel, uniform in inverse depth (a finer second sweep refines each pixel)",
         (CLI, BLENDER), min=8, max=512, label="Depth Planes")
     stereo_sources: int = setting(
-        4, "photos each depth map is matched against (the best half of them vote at each pixel)",
+        StereoOptions.sources, "photos each depth map is matched against (the best half of them vote at each pixel)",
         (CLI, BLENDER), min=1, max=16, label="Source Views")
     stereo_min_ncc: float = setting(
-        0.5, "minimum matching score (normalised cross-correlation) for a depth to be kept",
+        StereoOptions.min_ncc, "minimum matching score (normalised cross-correlation) for a depth to be kept",
         (CLI, BLENDER), min=-1.0, max=0.99, flag="--stereo-min-ncc", label="Min Match Score")
     stereo_consistency: int = setting(
-        0, "keep a depth only if this many other depth maps agree within 2 % (0 = off; fusion already "
+        StereoOptions.consistency_views, "keep a depth only if this many other depth maps agree within 2 percent (0 = off; fusion already "
         "filters most outliers, and a strict check loses more surface than noise)",
         (CLI, BLENDER), min=0, max=10, label="Consistency Views")
 

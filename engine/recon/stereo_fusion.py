@@ -25,6 +25,9 @@ from .recon_result import ReconResult, empty_mesh
 from .settings import ReconSettings
 from .tiles import TileState
 
+# A wider band than the ground truth's 3 voxels averages more views into each surface voxel: +0.01 F
+# on the demo sample at every stereo resolution tried (0.696 -> 0.704 at 160 px, 0.716 -> 0.726 at 200 px).
+FUSION_TRUNCATION_VOXELS = 4.0
 MIN_OBSERVATIONS = 1  # depth maps that must have updated a voxel before it can carry a surface
 
 
@@ -59,10 +62,36 @@ def stereo_depth_maps(
     return maps
 
 
-def fusion_grid(plan: ReconPlan, voxel_size: float) -> tuple[np.ndarray, tuple[int, int, int]]:
-    """Origin (3,) and dims of a dense grid over the scene bounds, aligned with the plan's voxel grid."""
-    origin = plan.grid.origin.astype(np.float64)
-    dims = np.ceil((plan.bounds.maximum - origin) / voxel_size).astype(np.int64) + 1
+def depth_points_box(maps: list[DepthMap], margin: float, stride: int = 4) -> Optional[tuple[np.ndarray, np.ndarray]]:
+    """(min, max) world box of the stereo depths (every `stride`-th pixel, 0.5-99.5 percentile per
+    axis, so a few wild depths do not stretch it), grown by `margin`; None when no map has a depth."""
+    points = []
+    for m in maps:
+        v, u = np.nonzero(m.depth[::stride, ::stride] > 0)
+        if len(v) == 0:
+            continue
+        v, u = v * stride, u * stride
+        z = m.depth[v, u].astype(np.float64)
+        rays = np.linalg.inv(m.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
+        points.append((m.pose[:3, :3] @ (rays * z) + m.pose[:3, 3:4]).T)
+    if not points:
+        return None
+    cloud = np.concatenate(points)
+    return np.percentile(cloud, 0.5, axis=0) - margin, np.percentile(cloud, 99.5, axis=0) + margin
+
+
+def fusion_grid(plan: ReconPlan, maps: list[DepthMap], voxel_size: float) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """Origin (3,) and dims of a dense grid on the plan's voxel lattice over the scene bounds cut to
+    where stereo found surfaces (the frusta at the bounds' depth reach metres past the walls, and
+    fusion's cost is the grid's volume)."""
+    lo, hi = plan.bounds.minimum.astype(np.float64), plan.bounds.maximum.astype(np.float64)
+    box = depth_points_box(maps, margin=4 * FUSION_TRUNCATION_VOXELS * voxel_size)
+    if box is not None:
+        lo, hi = np.maximum(lo, box[0]), np.minimum(hi, box[1])
+        hi = np.maximum(hi, lo + 2 * voxel_size)
+    lattice = plan.grid.origin.astype(np.float64)
+    origin = lattice + np.floor((lo - lattice) / voxel_size) * voxel_size
+    dims = np.ceil((hi - origin) / voxel_size).astype(np.int64) + 1
     return origin, tuple(int(d) for d in np.maximum(dims, 2))
 
 
@@ -101,8 +130,9 @@ def run_stereo_fusion(
         }
         check(cancel)
         with timer.stage("TSDF fusion"):
-            origin, dims = fusion_grid(plan, settings.voxel_size)
-            tsdf, weight = fuse_depth_maps(maps, origin, dims, settings.voxel_size, device, progress, cancel)
+            origin, dims = fusion_grid(plan, maps, settings.voxel_size)
+            tsdf, weight = fuse_depth_maps(maps, origin, dims, settings.voxel_size, FUSION_TRUNCATION_VOXELS, device,
+                                           progress, cancel)
         check(cancel)
         report(progress, "mesh", 0, 1)
         with timer.stage("mesh"):

@@ -140,7 +140,7 @@ def estimate_depth_maps(
         with torch.inference_mode():
             result = sweep_depth(reference, src_stack, torch.as_tensor(K_ref, dtype=torch.float32, device=device), K_src,
                                  src_from_ref, near_far, options.planes, options.refine_planes, options.best_k,
-                                 options.window, options.min_ncc)
+                                 options.window, options.min_ncc, options.refine_rounds)
         maps.append(DepthMap(int(r), result.depth.cpu().numpy().astype(np.float32),
                              result.confidence.cpu().numpy().astype(np.float32), K_ref, poses[r], used, near_far))
     report(progress, "stereo depth", len(references), len(references))

@@ -16,7 +16,7 @@ from ..jobs import CancelToken, ProgressCallback
 from ..tsdf.integration import fuse_tsdf
 from .depth_maps import DepthMap
 
-TRUNCATION_VOXELS = 3.0
+TRUNCATION_VOXELS = 3.0  # the ground truth's and FineRecon's; the stereo method fuses with its own
 
 
 def fuse_depth_maps(
@@ -24,6 +24,7 @@ def fuse_depth_maps(
     origin: np.ndarray,
     dims: Sequence[int],
     voxel_size: float,
+    truncation_voxels: float = TRUNCATION_VOXELS,
     device: Optional[torch.device] = None,
     progress: Optional[ProgressCallback] = None,
     cancel: Optional[CancelToken] = None,
@@ -37,6 +38,6 @@ def fuse_depth_maps(
         dims = tuple(int(d) for d in dims)
         return np.ones(dims, np.float32), np.zeros(dims, np.float32)
     tsdf, weight = fuse_tsdf([m.depth for m in maps], np.stack([m.K for m in maps]), np.stack([m.pose for m in maps]),
-                             origin, dims, voxel_size, TRUNCATION_VOXELS * voxel_size, depth_cap=None, device=device,
+                             origin, dims, voxel_size, truncation_voxels * voxel_size, depth_cap=None, device=device,
                              progress=progress, cancel=cancel)
     return tsdf.cpu().numpy(), weight.cpu().numpy()

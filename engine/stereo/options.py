@@ -10,9 +10,10 @@ from ..errors import VortxError
 
 @dataclass(frozen=True)
 class StereoOptions:
-    long_side: int = 160  # stereo image long side in pixels, independent of the network's image size
-    planes: int = 64  # depth hypotheses of the sweep, uniform in inverse depth
-    refine_planes: int = 8  # a second, per-pixel sweep over +-1 plane step around the first estimate (0 = off)
+    long_side: int = 200  # stereo image long side in pixels, independent of the network's image size
+    planes: int = 80  # depth hypotheses of the sweep, uniform in inverse depth
+    refine_planes: int = 8  # hypotheses of each per-pixel refinement sweep over +-1 step of the previous (0 = off)
+    refine_rounds: int = 1  # refinement sweeps (a second round measured no better on the demo sample)
     sources: int = 4  # source views per reference
     best_k: int = 2  # aggregate the best k source scores: robust to a source that is occluded
     window: int = 7  # NCC window side in pixels (odd); 7 beat 5 and 9 on the demo sample
@@ -31,6 +32,8 @@ class StereoOptions:
             raise VortxError(f"stereo planes must be at least 3, got {self.planes}")
         if self.refine_planes < 0:
             raise VortxError(f"stereo refine planes cannot be negative, got {self.refine_planes}")
+        if self.refine_rounds < 0:
+            raise VortxError(f"stereo refine rounds cannot be negative, got {self.refine_rounds}")
         if self.sources < 1:
             raise VortxError(f"stereo sources must be at least 1, got {self.sources}")
         if not 1 <= self.best_k <= self.sources:

@@ -29,12 +29,26 @@ class SweepResult:
     confidence: Tensor  # (H, W) aggregated NCC of the chosen depth in [0, 1], 0 where no depth
 
 
+def _window_sums(x: Tensor, window: int, dim: int) -> Tensor:
+    """Sums of `window` neighbours along `dim` (zero outside), via a cumulative sum: O(1) per element."""
+    half = window // 2
+    pad = [0, 0] * (x.dim() - 1 - dim % x.dim()) + [half + 1, half]
+    cumulative = F.pad(x, pad).cumsum(dim)
+    n = x.shape[dim]
+    return cumulative.narrow(dim, window, n) - cumulative.narrow(dim, 0, n)
+
+
 def box_mean(x: Tensor, window: int) -> Tensor:
-    """Window mean of (..., H, W) (a box filter; borders average only the pixels inside the image)."""
-    shape = x.shape
-    flat = x.reshape(-1, 1, *shape[-2:])
-    out = F.avg_pool2d(flat, window, stride=1, padding=window // 2, count_include_pad=False)
-    return out.reshape(shape)
+    """Window mean of (..., H, W) (a box filter; borders average only the pixels inside the image).
+
+    Separable running sums (a row sum, then a column sum, each divided by how many pixels it
+    covered): a 2D pooling was 60 % of the sweep's time.
+    """
+    H, W = x.shape[-2:]
+    ones_h = _window_sums(torch.ones(H, dtype=x.dtype, device=x.device), window, 0)
+    ones_w = _window_sums(torch.ones(W, dtype=x.dtype, device=x.device), window, 0)
+    sums = _window_sums(_window_sums(x, window, -1), window, -2)
+    return sums / (ones_h[:, None] * ones_w[None, :])
 
 
 def pixel_rays(K: Tensor, height: int, width: int) -> Tensor:
@@ -122,6 +136,7 @@ def sweep_depth(
     best_k: int,
     window: int,
     min_ncc: float,
+    refine_rounds: int = 1,
 ) -> SweepResult:
     """Depth and confidence of one reference view.
 
@@ -144,14 +159,15 @@ def sweep_depth(
     step = (inv[1] - inv[0])
     estimate = inv[best] + parabola_offset(cost, best) * step
     confidence = cost.gather(0, best[None])[0]
-    if refine_planes > 1:
-        # A finer per-pixel sweep over +-1 first-pass step: the first pass's step is ~0.3 m at 2 m.
+    for _ in range(refine_rounds if refine_planes > 1 else 0):
+        # Finer per-pixel sweeps over +-1 step of the previous one: the first pass's step is ~0.2 m
+        # at 2 m, and each round shrinks it by (refine_planes - 1) / 2.
         fine = torch.linspace(-1.0, 1.0, refine_planes, dtype=dtype, device=device) * step
         hypotheses = (estimate[None] + fine[:, None, None]).clamp_min(1.0 / (far * 4))
         fine_cost = aggregate(ncc_scores(reference, sources, K_ref, K_src, src_from_ref, hypotheses, window), best_k)
         fine_best = fine_cost.argmax(dim=0)
-        fine_step = fine[1] - fine[0]
-        estimate = hypotheses.gather(0, fine_best[None])[0] + parabola_offset(fine_cost, fine_best) * fine_step
+        step = fine[1] - fine[0]
+        estimate = hypotheses.gather(0, fine_best[None])[0] + parabola_offset(fine_cost, fine_best) * step
         confidence = torch.maximum(confidence, fine_cost.gather(0, fine_best[None])[0])
     mean_r = box_mean(reference, window)
     textured = (box_mean(reference * reference, window) - mean_r ** 2).clamp_min(0).sqrt() >= MIN_TEXTURE_STD
