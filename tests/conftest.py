@@ -59,7 +59,7 @@ def empty_scene(blender):
     return bpy.context.scene
 
 
-# --- helpers for the Blender-side tests (tests/test_blender_*.py) ---------------------------------
+# --- helpers for the Blender-side tests (tests/vortx_blender, tests/operators, tests/ui) ----------
 
 
 def look_at_pose(eye, target, up=(0.0, 0.0, 1.0)):
