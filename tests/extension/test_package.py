@@ -102,20 +102,20 @@ def test_build_rules_ship_weights_and_drop_samples(tmp_path: Path) -> None:
 
 def _photos_of_a_room(folder: Path) -> None:
     """Ten JPEGs (320x240, EXIF 35 mm focal) of a ray-cast textured box room, cameras on a circle
-    looking across it: what test_blender_capture_real.py shows SfM registers reliably."""
-    from test_blender_capture_real import _render_room, _wall_textures
+    looking across it: what tests/vortx_blender/test_capture_real.py shows SfM registers reliably."""
+    from fixtures_raycast_room import render_room, wall_textures
 
     room, size, f35 = np.array([4.0, 4.0, 2.5]), (320, 240), 30
     f = f35 * np.hypot(*size) / np.hypot(36.0, 24.0)
     K = np.array([[f, 0, size[0] / 2], [0, f, size[1] / 2], [0, 0, 1]])
-    walls = _wall_textures(seed=0)
+    walls = wall_textures(seed=0)
     folder.mkdir(parents=True)
     for i, a in enumerate(np.linspace(0, 2 * np.pi, 10, endpoint=False)):
         eye = np.array([2.0 + 1.2 * np.cos(a), 2.0 + 1.2 * np.sin(a), 1.5])
         pose = look_at_pose(eye, [2.0 - 1.5 * np.cos(a - 0.5), 2.0 - 1.5 * np.sin(a - 0.5), 1.3])
         exif = Image.Exif()
         exif.get_ifd(ExifTags.IFD.Exif)[0xA405] = f35  # FocalLengthIn35mmFilm
-        Image.fromarray(_render_room(K, pose, size, room, walls)).save(folder / f"{i:03d}.jpg", exif=exif, quality=95)
+        Image.fromarray(render_room(K, pose, size, room, walls)).save(folder / f"{i:03d}.jpg", exif=exif, quality=95)
 
 
 @pytest.mark.slow

@@ -2,7 +2,7 @@
 
 The engine's loader is replaced by a stand-in here, which pins down the operator's own behaviour
 (what it writes, what it leaves alone on failure) independently of the loaders; the tests in
-test_blender_capture_real.py run the real loaders and SfM.
+tests/vortx_blender/test_capture_real.py run the real loaders and SfM.
 """
 
 from __future__ import annotations
@@ -139,7 +139,7 @@ def test_estimate_poses_needs_an_imported_capture(blender, empty_scene) -> None:
 
 
 def test_estimate_poses_applies_engine_result(blender, empty_scene, fake_loader, monkeypatch, tmp_path: Path) -> None:
-    """The operator's side of pose estimation, with the SfM run replaced (the real one: test_blender_capture_real.py)."""
+    """The operator's side of pose estimation, with the SfM run replaced (the real one: tests/vortx_blender/test_capture_real.py)."""
     import bpy
 
     poses = importlib.import_module(f"{blender.__name__}.engine.poses")  # loaded lazily by the extension

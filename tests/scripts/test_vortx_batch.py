@@ -20,7 +20,7 @@ from conftest import REPO
 from fixtures_capture import intrinsics, ring_poses, write_photo_folder, write_scannet
 
 BATCH = REPO / "scripts" / "vortx_batch.py"
-# Tiny: 16 cm voxels, 8-voxel tiles, 3 views per tile, 160 px images, a 2 m room (test_recon_driver's numbers).
+# Tiny: 16 cm voxels, 8-voxel tiles, 3 views per tile, 160 px images, a 2 m room (tests/engine/recon/test_driver.py's numbers).
 TINY = ["--method", "vortx", "--weights", "random", "--voxel-size", "0.16", "--tile-size", "8", "--views", "3", "--image-size", "160",
         "--colour-views", "3", "--max-room-size", "2", "2", "2"]
 

@@ -245,7 +245,7 @@ def test_install_job_failure_names_pips_error(blender, deps, fake_python: Path, 
 
 
 def test_preferences_draw_missing_packages(blender, deps, tmp_path: Path) -> None:
-    from test_blender_ui import RecordingLayout
+    from fixtures_blender_ui import RecordingLayout
 
     preferences = blender.vortx_blender.preferences
     assert preferences.ADDON_PACKAGE == EXTENSION_MODULE

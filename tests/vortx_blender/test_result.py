@@ -152,7 +152,7 @@ def test_decimation_and_clean_up_keep_the_layer_and_the_toggle(blender, empty_sc
 
 
 class Recorder:
-    """Records the UILayout calls of draw_result_settings (the full checking recorder is in test_blender_ui)."""
+    """Records the UILayout calls of draw_result_settings (the full checking recorder is tests/fixtures_blender_ui.py)."""
 
     def __init__(self, calls: list) -> None:
         self.calls = calls

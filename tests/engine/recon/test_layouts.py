@@ -22,7 +22,7 @@ from engine.recon.synthetic import make_synthetic_capture
 
 TINY = ["--method", "vortx", "--weights", "random", "--voxel-size", "0.16", "--tile-size", "8", "--views", "3", "--image-size", "160",
         "--colour-views", "2", "--max-room-size", "2", "2", "2", "--quiet"]
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[3]
 
 
 @pytest.fixture(scope="module")

@@ -123,4 +123,4 @@ def test_planning_and_the_tile_overlay_data_do_not_import_torch():
             "from engine.recon.tiles import make_tiles; from engine.recon.scene_bounds import SceneBounds; "
             "g, t = make_tiles(SceneBounds(np.zeros(3), np.ones(3), (False,) * 3), 0.04, 96, 48); tile_grid(t); "
             "assert 'torch' not in sys.modules, 'torch was imported'")
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(Path(__file__).parents[1]))
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=str(Path(__file__).resolve().parents[3]))

@@ -2,7 +2,7 @@
 is printed after loading and recorded in the sidecar ("capture_warnings"), and the mesh is made from
 the other photos. The capture is the synthetic box room in the ScanNet layout (9 views), one PNG cut
 to half its bytes as an interrupted copy leaves it; tiny settings with a seeded random network
-(test_recon_driver.py's numbers) keep the run to seconds."""
+(test_driver.py's numbers) keep the run to seconds."""
 
 from __future__ import annotations
 
