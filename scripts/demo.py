@@ -61,7 +61,7 @@ def run_batch(images: Path, blend: Path, ply: Path, extra: Sequence[str]) -> Non
 
 def run_reconstruct(capture: Path, mesh: Path, extra: Sequence[str]) -> None:
     """`python -m engine reconstruct` in its own process, as a user runs it."""
-    command = [sys.executable, "-m", "engine", "reconstruct", str(capture), "--out", str(mesh), *extra]
+    command = [sys.executable, "-m", "engine", "reconstruct", str(capture), "--out", str(mesh), "--quiet", *extra]
     say("running " + " ".join(command[1:]))
     if subprocess.run(command, cwd=REPO).returncode != 0:
         raise DemoError(f"the reconstruction of {capture} failed (its error is above)")

@@ -124,6 +124,9 @@ def apply_point_cloud(scene: "bpy.types.Scene", points: Optional[np.ndarray], co
     set_point_colours(mesh, colours)
     obj = bpy.data.objects.new(POINT_CLOUD_NAME, mesh)
     obj[POINT_CLOUD_TAG] = True
+    # A guide for the viewport (seeing the scene, picking points for Set Scale), not part of the
+    # room: renders of the result must not show it.
+    obj.hide_render = True
     modifier = obj.modifiers.new(POINTS_MODIFIER, "NODES")
     modifier.node_group = _mesh_to_points_group()
     collection.objects.link(obj)

@@ -56,7 +56,10 @@ def stereo_depth_maps(
     chosen = stereo_references(len(plan.keyframes), options.max_references)
     references = [position[plan.keyframe_ids[k]] for k in chosen]
     bounds = (plan.bounds.minimum, plan.bounds.maximum)
-    maps = estimate_depth_maps(frames, poses, references, options, bounds=bounds, progress=progress, cancel=cancel)
+    # Sparse SfM points, when the capture carries them, give each view a tight depth range.
+    points = capture.points if capture.points is not None and len(capture.points) else None
+    maps = estimate_depth_maps(frames, poses, references, options, points=points, bounds=bounds, progress=progress,
+                               cancel=cancel)
     for m, k in zip(maps, chosen):
         m.frame = int(k)
     return maps

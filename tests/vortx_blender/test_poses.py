@@ -57,6 +57,7 @@ def test_estimate_poses_shows_the_sfm_points(blender, empty_scene, monkeypatch, 
     shown, shown_colours = blender.vortx_blender.point_cloud.scene_points(empty_scene)
     np.testing.assert_allclose(shown, points, atol=1e-6)
     np.testing.assert_array_equal(shown_colours, colours)
+    assert blender.vortx_blender.point_cloud.find_point_cloud(empty_scene).hide_render, "a viewport guide, not in renders"
     assert empty_scene.vortx.scale_source == "camera height" and empty_scene.vortx.scale_description == "scaled"
 
 
