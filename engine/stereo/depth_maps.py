@@ -17,7 +17,7 @@ import torch
 
 from ..capture import Frame
 from ..jobs import CancelToken, ProgressCallback, check, report
-from ..geometry.cameras import scale_intrinsics
+from ..geometry.cameras import project_points, scale_intrinsics, world_to_camera
 from ..recon.images import load_resized, resized_size
 from .options import StereoOptions
 from .source_views import select_sources
@@ -71,14 +71,9 @@ def depth_range(
     always within the options' [min_depth, max_depth].
     """
     near, far = options.min_depth, options.max_depth
-    world_to_cam = np.linalg.inv(pose)
     if points is not None and len(points):
-        cam = points @ world_to_cam[:3, :3].T + world_to_cam[:3, 3]
-        z = cam[:, 2]
-        front = z > 1e-3
-        u = K[0, 0] * cam[front, 0] / z[front] + K[0, 2]
-        v = K[1, 1] * cam[front, 1] / z[front] + K[1, 2]
-        seen = z[front][(u >= 0) & (u < size[0]) & (v >= 0) & (v < size[1])]
+        u, v, z = project_points(points, K, pose)
+        seen = z[(z > 1e-3) & (u >= 0) & (u < size[0]) & (v >= 0) & (v < size[1])]
         if len(seen) >= MIN_RANGE_POINTS:
             lo, hi = np.percentile(seen, [1, 99])
             near, far = max(near, 0.75 * lo), min(far, 1.25 * hi)
@@ -86,7 +81,7 @@ def depth_range(
     if bounds is not None:
         lo, hi = bounds
         corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-        z = (corners @ world_to_cam[:3, :3].T + world_to_cam[:3, 3])[:, 2]
+        z = world_to_camera(corners, pose)[:, 2]
         far = min(far, max(float(z.max()), near * 2))
     return near, far
 
