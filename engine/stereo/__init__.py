@@ -5,10 +5,27 @@ The depths are the domain-independent geometric evidence of the reconstruction
 they are the extra input of VoRTX with geometric evidence.
 """
 
-from .depth_maps import DepthMap, estimate_depth_maps, stereo_references
-from .fused_tsdf import fuse_depth_maps
-from .options import StereoOptions
-from .source_views import select_sources
-from .sweep import sweep_depth
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# Names are imported on first use: `engine.recon.settings` reads `stereo.options` (numpy only), and
+# planning and the extension's registration must not pay for (or need) torch, which depth_maps imports.
+_HOMES = {
+    "DepthMap": ".depth_maps",
+    "estimate_depth_maps": ".depth_maps",
+    "stereo_references": ".depth_maps",
+    "fuse_depth_maps": ".fused_tsdf",
+    "StereoOptions": ".options",
+    "select_sources": ".source_views",
+    "sweep_depth": ".sweep",
+}
 
 __all__ = ["DepthMap", "StereoOptions", "fuse_depth_maps", "estimate_depth_maps", "select_sources", "stereo_references", "sweep_depth"]
+
+
+def __getattr__(name: str) -> Any:
+    if name not in _HOMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(_HOMES[name], __name__), name)
