@@ -95,11 +95,12 @@ def vertex_evidence(
 
 def attach_evidence(
     mesh: Mesh, maps: Sequence[DepthMap], voxel_size: float, network_completes: bool,
-    device: Optional[torch.device] = None,
+    device: Optional[torch.device] = None, truncation_voxels: float = TRUNCATION_VOXELS,
 ) -> dict[str, float]:
     """Set `mesh.attributes` to the evidence of its vertices from `maps`, judged within the TSDF truncation
-    of a `voxel_size` grid (3 voxels, as the fusion and the ground truth); returns `evidence_summary`."""
-    mesh.attributes = {**mesh.attributes, **vertex_evidence(mesh.vertices, maps, TRUNCATION_VOXELS * voxel_size,
+    the surface was fused with (`truncation_voxels` voxels of `voxel_size`; 3 as the ground truth and the
+    network's stereo TSDF); returns `evidence_summary`."""
+    mesh.attributes = {**mesh.attributes, **vertex_evidence(mesh.vertices, maps, truncation_voxels * voxel_size,
                                                              network_completes, device)}
     return evidence_summary(mesh.attributes)
 
