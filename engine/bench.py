@@ -275,12 +275,14 @@ def run(args: argparse.Namespace) -> int:
         for case in cases:
             print(f"running {case.name} ...", file=sys.stderr, flush=True)
             report["runs"].append(run_case(case, args.device, workdir))
+            _save_partial(report, args.out)
         report["stereo_runs"] = []
         for case in stereo_cases(cases):
             print(f"running stereo fusion on {case.name} ...", file=sys.stderr, flush=True)
             run = run_stereo_case(case, args.device, workdir)
             run["versus_vortx"] = compare_with_vortx(run, report["runs"])
             report["stereo_runs"].append(run)
+            _save_partial(report, args.out)
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     report["sparse_vs_dense"] = []
@@ -297,6 +299,13 @@ def run(args: argparse.Namespace) -> int:
         args.out.write_text(json.dumps(report, indent=1, default=_jsonable) + "\n")
         print(f"\nwrote {args.out}", file=sys.stderr)
     return 0
+
+
+def _save_partial(report: dict[str, Any], out: Optional[Path]) -> None:
+    """The runs so far beside --out (an hour-long run on a busy machine should not lose them to one failure)."""
+    if out is not None:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.with_suffix(".partial.json").write_text(json.dumps(report, indent=1, default=_jsonable) + "\n")
 
 
 def _jsonable(value: Any) -> Optional[Any]:
