@@ -18,7 +18,7 @@ from engine.model.backbone_efficientnet import (
 )
 from engine.model.backbone_mnasnet import MnasNetPyramid
 
-SHARED = Path(__file__).resolve().parents[1].parent / "shared"
+SHARED = Path(__file__).resolve().parents[3].parent / "shared"
 KEYS_FILE = SHARED / "design" / "vortx-official-keys.txt"
 FOX_PHOTO = SHARED / "data" / "fox" / "images" / "0030.jpg"
 RED_FOX = 277  # ImageNet class index

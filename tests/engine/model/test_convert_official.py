@@ -16,7 +16,7 @@ from engine.model import load_weights
 from engine.model.convert_official import convert_checkpoint
 from engine.sparse import SparseVoxels
 
-KEYS_FILE = Path(__file__).resolve().parents[1].parent / "shared" / "design" / "vortx-official-keys.txt"
+KEYS_FILE = Path(__file__).resolve().parents[3].parent / "shared" / "design" / "vortx-official-keys.txt"
 
 # The official Upsampler's constant tables, in its [x, y, z, batch] column order.
 OFFICIAL_OFFSETS = [[0, 0, 0, 0], [1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [1, 1, 0, 0], [0, 1, 1, 0], [1, 0, 1, 0], [1, 1, 1, 0]]

@@ -11,7 +11,7 @@ import torch
 from engine.model.unet3d import SparseUNet
 from engine.sparse import SparseVoxels
 
-KEYS_FILE = Path(__file__).resolve().parent.parent.parent / "shared" / "design" / "vortx-official-keys.txt"
+KEYS_FILE = Path(__file__).resolve().parents[3].parent / "shared" / "design" / "vortx-official-keys.txt"
 # (level name, input channels, base width, output channels) of the official model (vortx-spec.md section 1).
 LEVELS = [("coarse", 80, 32, 96), ("medium", 137, 16, 48), ("fine", 73, 8, 24)]
 

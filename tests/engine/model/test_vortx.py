@@ -14,7 +14,7 @@ from engine.errors import WeightsError
 from engine.model import LevelOutput, VortxBatch, VortxConfig, VortxNet, load_weights, read_config, save_weights
 from engine.model.coarse_to_fine import Upsampler, subsample_per_sample
 
-KEYS_FILE = Path(__file__).resolve().parents[1].parent / "shared" / "design" / "vortx-official-keys.txt"
+KEYS_FILE = Path(__file__).resolve().parents[3].parent / "shared" / "design" / "vortx-official-keys.txt"
 TINY = dict(backbone="mnasnet", feature_channels=(16, 8, 8), unet_base_widths=(8, 4, 4))
 H, W = 48, 64
 

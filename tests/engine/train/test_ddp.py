@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 import torch
 
-WORKER = Path(__file__).with_name("ddp_worker.py")
-REPO = Path(__file__).resolve().parents[1]
+WORKER = Path(__file__).resolve().parents[2] / "ddp_worker.py"
+REPO = Path(__file__).resolve().parents[3]
 
 
 def _torchrun(out: Path, steps: int, resume: bool = False) -> list[dict]:

@@ -16,7 +16,7 @@ from fixtures_capture import write_room_scene
 
 def test_train_stops_at_steps_then_resumes_to_the_end(tmp_path: Path, capsys) -> None:
     write_room_scene(tmp_path / "rooms" / "box", box_room(n_frames=8, image_size=(64, 48)))
-    tiny = json.loads((Path(__file__).resolve().parents[1] / "configs" / "train_tiny.json").read_text())
+    tiny = json.loads((Path(__file__).resolve().parents[3] / "configs" / "train_tiny.json").read_text())
     tiny |= {"rooms": [str(tmp_path / "rooms")], "out_dir": str(tmp_path / "runs" / "{name}"), "max_minutes": 0}
     config = tmp_path / "tiny.json"
     config.write_text(json.dumps(tiny))
