@@ -3,7 +3,7 @@
 TSDF sign (ground-truth convention, spec section 2): negative in front of the surface (free space,
 the cameras' side), positive behind it. Marching cubes runs on -tsdf at level 0; with scikit-image's
 default winding, triangles then face the *larger* values of its input, i.e. free space, so the face
-and vertex normals point toward the cameras (tests/test_recon_mesh.py checks this on a sphere).
+and vertex normals point toward the cameras (tests/engine/recon/test_mesh.py checks this on a sphere).
 Values live at voxel corners: a vertex at continuous grid index p lies at p * voxel_size + origin.
 """
 

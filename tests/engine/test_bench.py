@@ -1,5 +1,5 @@
 """The benchmark's pure parts: the memory model and the report table (the runs themselves are
-exercised end to end by tests/test_recon_driver.py)."""
+exercised end to end by tests/engine/recon/test_driver.py)."""
 
 from __future__ import annotations
 
