@@ -52,6 +52,22 @@ def _only_selected(obj: bpy.types.Object, view_layer: bpy.types.ViewLayer) -> It
         view_layer.objects.active = active
 
 
+@contextmanager
+def _photo_colours_shown(obj: bpy.types.Object) -> Iterator[None]:
+    """The exporters write the shown colour attribute: a result showing its confidence layer (Show
+    Observation) is exported with its photo colours, and shown as before afterwards."""
+    from .result import SHOW_OBSERVATION, show_observation
+
+    showing = bool(getattr(obj, SHOW_OBSERVATION, False))
+    if showing:
+        show_observation(obj, False)
+    try:
+        yield
+    finally:
+        if showing:
+            show_observation(obj, True)
+
+
 def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types.ViewLayer | None = None) -> Path:
     """Write `obj` to `path`; the format comes from the extension (.glb, .gltf, .ply, .obj).
 
@@ -65,7 +81,7 @@ def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types
         raise VortxError(f"'{obj.name}' is not a mesh")
     path.parent.mkdir(parents=True, exist_ok=True)
     view_layer = view_layer or bpy.context.view_layer
-    with _only_selected(obj, view_layer):
+    with _only_selected(obj, view_layer), _photo_colours_shown(obj):
         if kind == "PLY":
             outcome = bpy.ops.wm.ply_export(
                 filepath=str(path), export_selected_objects=True, forward_axis="Y", up_axis="Z", global_scale=1.0,

@@ -180,3 +180,14 @@ def test_result_panel_offers_the_toggle_for_the_shown_result(blender, empty_scen
     assert (len(props), len(labels)) == ((1, 0) if evidence else (0, 1))
     if evidence:
         assert props[0][1][1] == "vortx_show_observation"
+
+
+def test_export_writes_photo_colours_while_the_observation_is_shown(blender, empty_scene, tmp_path) -> None:
+    """Exporters write the shown colour attribute; the file must carry the photos' colours, and the
+    viewport must still show the observation afterwards."""
+    obj = insert(blender, empty_scene, sheet(blender))
+    obj.vortx_show_observation = True
+    path = blender.vortx_blender.export.export_result(obj, tmp_path / "sheet.ply")
+    written = blender.engine.mesh_io.read_ply(path)
+    np.testing.assert_allclose(written.colors, GREY, atol=0.01)
+    assert obj.data.color_attributes.active_color_name == "Observation" and obj.vortx_show_observation
