@@ -255,3 +255,23 @@ def write_video(path: Path, frames_rgb: Sequence[np.ndarray], fps: float) -> Pat
         writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     writer.release()
     return path
+
+
+def rotation_about(axis: Sequence[float], degrees: float) -> np.ndarray:
+    """(3, 3) rotation by `degrees` about `axis` (Rodrigues)."""
+    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    x = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    a = np.radians(degrees)
+    return np.eye(3) + np.sin(a) * x + (1 - np.cos(a)) * x @ x
+
+
+def perturbed_poses(truth: list[np.ndarray], rng: np.random.Generator) -> list[np.ndarray]:
+    """Each pose turned 0.5-2 deg about a random axis (in the camera frame) and moved up to 3 cm per
+    axis: tracker poses slightly off against the photos, for pose refinement tests."""
+    out = []
+    for pose in truth:
+        p = pose.copy()
+        p[:3, :3] = pose[:3, :3] @ rotation_about(rng.standard_normal(3), rng.uniform(0.5, 2.0))
+        p[:3, 3] += rng.uniform(-0.03, 0.03, 3)
+        out.append(p)
+    return out

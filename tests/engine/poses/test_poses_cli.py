@@ -25,27 +25,10 @@ from engine.capture import load_capture
 from engine.capture.model import Capture, Frame
 from engine.capture.writers import write_scannet
 from engine.poses import fit_pose_similarity, rotation_angle_deg
+from fixtures_capture import perturbed_poses as perturbed, rotation_about
 
 SAMPLE = REPO / "samples" / "demo_room"
 COUNT = 16
-
-
-def rotation_about(axis: np.ndarray, degrees: float) -> np.ndarray:
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    x = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    a = np.radians(degrees)
-    return np.eye(3) + np.sin(a) * x + (1 - np.cos(a)) * x @ x
-
-
-def perturbed(truth: list[np.ndarray], rng: np.random.Generator) -> list[np.ndarray]:
-    """Each pose turned 0.5-2 deg about a random axis (camera frame) and moved up to 3 cm per axis."""
-    out = []
-    for pose in truth:
-        p = pose.copy()
-        p[:3, :3] = pose[:3, :3] @ rotation_about(rng.standard_normal(3), rng.uniform(0.5, 2.0))
-        p[:3, 3] += rng.uniform(-0.03, 0.03, 3)
-        out.append(p)
-    return out
 
 
 @pytest.fixture(scope="module")

@@ -15,27 +15,10 @@ from engine.errors import PoseError
 from engine.poses import RefineOptions, fit_pose_similarity, refine_poses, rotation_angle_deg
 from engine.poses.align import Similarity
 from engine.poses.refine import _accepted, _cam_from_world, neighbour_pairs
+from fixtures_capture import perturbed_poses as perturbed, rotation_about
 
 SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "demo_room"
 WILD = 7  # the frame given a pose 30 degrees off
-
-
-def rotation_about(axis: np.ndarray, degrees: float) -> np.ndarray:
-    axis = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    x = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    a = np.radians(degrees)
-    return np.eye(3) + np.sin(a) * x + (1 - np.cos(a)) * x @ x
-
-
-def perturbed(truth: list[np.ndarray], rng: np.random.Generator) -> list[np.ndarray]:
-    """Each pose turned 0.5-2 deg about a random axis (in the camera frame) and moved up to 3 cm per axis."""
-    out = []
-    for pose in truth:
-        p = pose.copy()
-        p[:3, :3] = pose[:3, :3] @ rotation_about(rng.standard_normal(3), rng.uniform(0.5, 2.0))
-        p[:3, 3] += rng.uniform(-0.03, 0.03, 3)
-        out.append(p)
-    return out
 
 
 @pytest.fixture(scope="module")
