@@ -38,6 +38,7 @@ def stereo_options(settings: ReconSettings, device: torch.device) -> StereoOptio
                          sources=settings.stereo_sources,
                          best_k=max(1, settings.stereo_sources // 2), min_ncc=settings.stereo_min_ncc,
                          max_references=settings.stereo_views, consistency_views=settings.stereo_consistency,
+                         min_depth=min(StereoOptions.min_depth, 0.5 * settings.frustum_depth),
                          max_depth=1.25 * settings.frustum_depth, device=str(device))
 
 

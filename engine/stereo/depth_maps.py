@@ -24,7 +24,7 @@ from .source_views import select_sources
 from .sweep import sweep_depth
 
 MIN_RANGE_POINTS = 30  # sparse points a view must see before its depth range is taken from them
-CONSISTENCY_NEIGHBOURS = 6  # references a depth is checked against
+CONSISTENCY_NEIGHBOURS = 6  # references a depth is checked against (more when more confirmations are asked for)
 CONSISTENCY_RELATIVE_DEPTH = 0.02  # two depths agree within 2 % (stereo-evidence.md)
 
 
@@ -105,37 +105,42 @@ def estimate_depth_maps(
     options.validate()
     device = torch.device(options.device)
     poses = np.asarray(poses, dtype=np.float64)
+    # Grey images at the stereo size, kept on the CPU (one photo is a source of several references)
+    # and moved to the device per reference, so a long capture does not fill GPU memory.
     images: dict[int, tuple[torch.Tensor, np.ndarray]] = {}
 
     def image(i: int) -> tuple[torch.Tensor, np.ndarray]:
         if i not in images:
             grey, size = grey_image(frames[i], options.long_side)
             K = scale_intrinsics(frames[i].K, (frames[i].width, frames[i].height), size)
-            images[i] = (torch.as_tensor(grey, device=device), K)
+            images[i] = (torch.as_tensor(grey), K)
         return images[i]
 
     maps: list[DepthMap] = []
     for done, r in enumerate(references):
         check(cancel)
         report(progress, "stereo depth", done, len(references))
-        sources = select_sources(poses, int(r), options.sources)
         reference, K_ref = image(int(r))
         size = (reference.shape[1], reference.shape[0])
         near_far = depth_range(K_ref, poses[r], size, options, points, bounds)
-        src_images = [image(int(s)) for s in sources]
-        shape = reference.shape
-        # Sources may differ in size (mixed captures are refused upstream, but stay general): stack
-        # only same-sized ones, which is every one in practice.
-        src_stack = torch.stack([im for im, _ in src_images if im.shape == shape]) if src_images else reference.new_zeros((0, *shape))
-        K_src = torch.as_tensor(np.stack([K for im, K in src_images if im.shape == shape]) if src_images else np.zeros((0, 3, 3)),
-                                dtype=torch.float32, device=device)
-        used = np.array([s for s, (im, _) in zip(sources, src_images) if im.shape == shape], dtype=np.int64)
-        src_from_ref = torch.as_tensor(np.linalg.inv(poses[used]) @ poses[r] if len(used) else np.zeros((0, 4, 4)),
-                                       dtype=torch.float32, device=device)
+        # The sources are stacked, so they must share one size (mixed captures are refused upstream):
+        # keep those of the most common size among them.
+        candidates = [(int(s), *image(int(s))) for s in select_sources(poses, int(r), options.sources)]
+        shapes = [tuple(im.shape) for _, im, _ in candidates]
+        common = max(set(shapes), key=shapes.count) if shapes else None
+        chosen = [(s, im, K) for (s, im, K), shape in zip(candidates, shapes) if shape == common]
+        used = np.array([s for s, _, _ in chosen], dtype=np.int64)
+        if chosen:
+            src_stack = torch.stack([im for _, im, _ in chosen]).to(device)
+            K_src = torch.as_tensor(np.stack([K for _, _, K in chosen]), dtype=torch.float32, device=device)
+            src_from_ref = torch.as_tensor(np.linalg.inv(poses[used]) @ poses[r], dtype=torch.float32, device=device)
+        else:
+            src_stack = torch.zeros((0, *reference.shape), device=device)
+            K_src = src_from_ref = torch.zeros((0, 3, 3), device=device)
         with torch.inference_mode():
-            result = sweep_depth(reference, src_stack, torch.as_tensor(K_ref, dtype=torch.float32, device=device), K_src,
-                                 src_from_ref, near_far, options.planes, options.refine_planes, options.best_k,
-                                 options.window, options.min_ncc, options.refine_rounds)
+            result = sweep_depth(reference.to(device), src_stack, torch.as_tensor(K_ref, dtype=torch.float32, device=device),
+                                 K_src, src_from_ref, near_far, options.planes, options.refine_planes, options.best_k,
+                                 options.window, options.min_ncc, options.refine_rounds, cancel)
         maps.append(DepthMap(int(r), result.depth.cpu().numpy().astype(np.float32),
                              result.confidence.cpu().numpy().astype(np.float32), K_ref, poses[r], used, near_far))
     report(progress, "stereo depth", len(references), len(references))
@@ -150,7 +155,10 @@ def filter_consistent(maps: list[DepthMap], min_views: int) -> None:
     A depth is confirmed by a neighbouring reference when its 3D point projects into that view
     and the neighbour's depth there agrees within 2 % of the point's depth in that view.
     """
+    if not maps:
+        return
     poses = np.stack([m.pose for m in maps])
+    neighbours = max(CONSISTENCY_NEIGHBOURS, min_views)  # asking for more confirmations than views checked would drop everything
     confirmations = []
     for a, m in enumerate(maps):
         h, w = m.depth.shape
@@ -159,7 +167,7 @@ def filter_consistent(maps: list[DepthMap], min_views: int) -> None:
         rays = np.linalg.inv(m.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
         world = (m.pose[:3, :3] @ (rays * z) + m.pose[:3, 3:4]).T
         count = np.zeros(len(z), dtype=np.int64)
-        for b in select_sources(poses, a, CONSISTENCY_NEIGHBOURS):
+        for b in select_sources(poses, a, neighbours):
             other = maps[int(b)]
             cam = (world - other.pose[:3, 3]) @ other.pose[:3, :3]
             zb = cam[:, 2]

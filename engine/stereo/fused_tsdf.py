@@ -2,7 +2,8 @@
 
 Fusion is the stereo outlier filter: a wrong depth in one view is outvoted by the free space the
 other views see through it (stereo-evidence.md: with many overlapping views this beats a strict
-cross-view consistency check). The truncation is 3 voxels, as in the ground truth and FineRecon.
+cross-view consistency check). The truncation defaults to 3 voxels, as in the ground truth and
+FineRecon; the stereo method fuses with its own wider band (engine/recon/stereo_fusion.py).
 """
 
 from __future__ import annotations

@@ -14,28 +14,33 @@ coordinates to source camera coordinates; inverse depths (D, H, W) in 1/metres.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ..jobs import CancelToken, check
+
 MIN_TEXTURE_STD = 0.01  # grey-level std (0..1) in the window below which a reference pixel has no texture to match
-PLANE_CHUNK = 16  # hypotheses warped at once: bounds memory to sources x chunk x H x W
+PLANE_CHUNK = 16  # hypotheses scored at once: memory is sources x chunk x H x W per step
 
 
 @dataclass
 class SweepResult:
     depth: Tensor  # (H, W) metres, 0 where no depth was found
-    confidence: Tensor  # (H, W) aggregated NCC of the chosen depth in [0, 1], 0 where no depth
+    confidence: Tensor  # (H, W) best aggregated NCC found for the pixel (first sweep or refinement) in [0, 1], 0 where no depth
 
 
 def _window_sums(x: Tensor, window: int, dim: int) -> Tensor:
     """Sums of `window` neighbours along `dim` (zero outside), via a cumulative sum: O(1) per element."""
     half = window // 2
     pad = [0, 0] * (x.dim() - 1 - dim % x.dim()) + [half + 1, half]
-    cumulative = F.pad(x, pad).cumsum(dim)
+    # float64: float32 running sums over a 2000-pixel row lose ~5e-3 of a window's std (measured),
+    # half the texture threshold.
+    cumulative = F.pad(x.double(), pad).cumsum(dim)
     n = x.shape[dim]
-    return cumulative.narrow(dim, window, n) - cumulative.narrow(dim, 0, n)
+    return (cumulative.narrow(dim, window, n) - cumulative.narrow(dim, 0, n)).to(x.dtype)
 
 
 def box_mean(x: Tensor, window: int) -> Tensor:
@@ -81,30 +86,39 @@ def warp_source(source: Tensor, K_src: Tensor, src_from_ref: Tensor, rays: Tenso
     return warped[:, 0], inside.reshape(D, H, W)
 
 
-def ncc_scores(
-    reference: Tensor, sources: Tensor, K_ref: Tensor, K_src: Tensor, src_from_ref: Tensor, inv_depths: Tensor, window: int,
+def matching_cost(
+    reference: Tensor, sources: Tensor, K_ref: Tensor, K_src: Tensor, src_from_ref: Tensor, inv_depths: Tensor,
+    window: int, best_k: int, cancel: Optional[CancelToken] = None,
 ) -> Tensor:
-    """(S, D, H, W) windowed NCC of the reference against each warped source, -1 where the source
-    cannot see the hypothesis."""
+    """(D, H, W) matching score of each hypothesis: the windowed NCC of the reference against each
+    warped source (-1 where the source cannot see the hypothesis), the best k sources averaged.
+
+    Hypotheses are scored PLANE_CHUNK at a time, so memory is sources x chunk x H x W plus the
+    (D, H, W) result, whatever the number of planes.
+    """
     H, W = reference.shape
     rays = pixel_rays(K_ref, H, W)
     mean_r = box_mean(reference, window)
     std_r = (box_mean(reference * reference, window) - mean_r ** 2).clamp_min(0).sqrt()
     depths = 1.0 / inv_depths
-    scores = torch.full((len(sources), *inv_depths.shape), -1.0, dtype=reference.dtype, device=reference.device)
-    for s in range(len(sources)):
-        for a in range(0, len(inv_depths), PLANE_CHUNK):
-            warped, inside = warp_source(sources[s], K_src[s], src_from_ref[s], rays, depths[a:a + PLANE_CHUNK])
+    cost = torch.empty(inv_depths.shape, dtype=reference.dtype, device=reference.device)
+    for a in range(0, len(inv_depths), PLANE_CHUNK):
+        check(cancel)
+        chunk = depths[a:a + PLANE_CHUNK]
+        scores = torch.full((len(sources), *chunk.shape), -1.0, dtype=reference.dtype, device=reference.device)
+        for s in range(len(sources)):
+            warped, inside = warp_source(sources[s], K_src[s], src_from_ref[s], rays, chunk)
             mean_s = box_mean(warped, window)
             var_s = (box_mean(warped * warped, window) - mean_s ** 2).clamp_min(0)
             cov = box_mean(warped * reference, window) - mean_s * mean_r
             ncc = cov / (std_r * var_s.sqrt()).clamp_min(1e-6)
-            scores[s, a:a + PLANE_CHUNK] = torch.where(inside, ncc.clamp(-1, 1), torch.full_like(ncc, -1.0))
-    return scores
+            scores[s] = torch.where(inside, ncc.clamp(-1, 1), torch.full_like(ncc, -1.0))
+        cost[a:a + PLANE_CHUNK] = aggregate(scores, best_k)
+    return cost
 
 
 def aggregate(scores: Tensor, best_k: int) -> Tensor:
-    """(D, H, W) mean of the best k source scores: an occluded or out-of-view source does not veto."""
+    """(D, H, W) mean of the best k source scores (S, D, H, W): an occluded or out-of-view source does not veto."""
     k = min(best_k, scores.shape[0])
     return scores.topk(k, dim=0).values.mean(dim=0)
 
@@ -137,6 +151,7 @@ def sweep_depth(
     window: int,
     min_ncc: float,
     refine_rounds: int = 1,
+    cancel: Optional[CancelToken] = None,
 ) -> SweepResult:
     """Depth and confidence of one reference view.
 
@@ -153,7 +168,7 @@ def sweep_depth(
     near, far = depth_range
     inv = torch.linspace(1.0 / far, 1.0 / near, planes, dtype=dtype, device=device)
     hypotheses = inv[:, None, None].expand(planes, H, W)
-    cost = aggregate(ncc_scores(reference, sources, K_ref, K_src, src_from_ref, hypotheses, window), best_k)
+    cost = matching_cost(reference, sources, K_ref, K_src, src_from_ref, hypotheses, window, best_k, cancel)
     best = cost.argmax(dim=0)
     at_end = (best == 0) | (best == planes - 1)
     step = (inv[1] - inv[0])
@@ -164,10 +179,13 @@ def sweep_depth(
         # at 2 m, and each round shrinks it by (refine_planes - 1) / 2.
         fine = torch.linspace(-1.0, 1.0, refine_planes, dtype=dtype, device=device) * step
         hypotheses = (estimate[None] + fine[:, None, None]).clamp_min(1.0 / (far * 4))
-        fine_cost = aggregate(ncc_scores(reference, sources, K_ref, K_src, src_from_ref, hypotheses, window), best_k)
+        fine_cost = matching_cost(reference, sources, K_ref, K_src, src_from_ref, hypotheses, window, best_k, cancel)
         fine_best = fine_cost.argmax(dim=0)
         step = fine[1] - fine[0]
         estimate = hypotheses.gather(0, fine_best[None])[0] + parabola_offset(fine_cost, fine_best) * step
+        # The best score seen for the pixel: with an even number of refinement hypotheses the first
+        # estimate itself is not re-scored, and scoring only the last round dropped 10 % of the depths
+        # and 0.02 F on the demo sample.
         confidence = torch.maximum(confidence, fine_cost.gather(0, fine_best[None])[0])
     mean_r = box_mean(reference, window)
     textured = (box_mean(reference * reference, window) - mean_r ** 2).clamp_min(0).sqrt() >= MIN_TEXTURE_STD

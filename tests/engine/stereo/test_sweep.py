@@ -94,3 +94,17 @@ def test_demo_room_depth_maps_against_the_true_mesh() -> None:
     assert np.median(rel) < 0.05
     assert (rel < 0.05).mean() > 0.45
     assert np.mean(complete) > 0.5
+
+
+def test_consistency_filter_keeps_depths_that_more_than_six_views_confirm() -> None:
+    """Asking for 7 confirmations checks at least 7 neighbours (it used to check 6 and drop every depth)."""
+    from engine.stereo.depth_maps import DepthMap, filter_consistent
+
+    _, K, poses = plane_views(2.0, count=9)
+    maps = [DepthMap(i, np.full((120, 160), 2.0, np.float32), np.ones((120, 160), np.float32), K, pose,
+                     np.zeros(0, np.int64), (0.5, 5.0)) for i, pose in enumerate(poses)]
+    maps[4].depth[60, 80] = 2.5  # one wrong depth: no other view agrees
+    filter_consistent(maps, 7)
+    middle = maps[4].depth
+    assert middle[60, 80] == 0.0, "the outlier is dropped"
+    assert (middle[40:80, 60:100] > 0).mean() > 0.99, "depths all nine views share are kept"
