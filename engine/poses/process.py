@@ -8,7 +8,9 @@ each pycolmap call is one long blocking call.
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
 import queue
 import re
 import signal
@@ -17,7 +19,9 @@ import sys
 import threading
 from collections import deque
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Optional, Sequence
+
+import numpy as np
 
 from ..errors import Cancelled, PoseError
 from ..jobs import CancelToken, ProgressCallback, report
@@ -180,3 +184,32 @@ def run_worker(
             f"{task} crashed: the COLMAP process {_describe_exit(returncode)}. "
             f"Last log lines:\n{last}"
         )
+
+
+def run_pose_job(
+    job: dict[str, Any],
+    work: Path,
+    keep_work: bool,
+    task: str,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
+    """Run one sfm_worker job in `work` (job.json in, result.json + points.npz out) and read its
+    result: (result, points (N, 3), colours (N, 3)). `work` is removed afterwards unless keep_work.
+
+    Raises Cancelled, or PoseError naming the task when the process fails or leaves no result.
+    """
+    try:
+        job_path = work / "job.json"
+        job_path.write_text(json.dumps(job, indent=1))
+        run_worker(worker_command(job_path), progress=progress, cancel=cancel, log_path=work / "colmap.log", task=task)
+        try:
+            result = json.loads((work / "result.json").read_text())
+            with np.load(work / "points.npz") as npz:
+                return result, npz["xyz"], npz["rgb"]
+        except (OSError, ValueError) as error:
+            raise PoseError(f"the {task} process ended without a usable result ({error}); "
+                            "run again with a work_dir to keep its log (colmap.log)") from error
+    finally:
+        if not keep_work:
+            shutil.rmtree(work, ignore_errors=True)

@@ -33,8 +33,6 @@ batch script call this):
 
 from __future__ import annotations
 
-import json
-import shutil
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -47,7 +45,7 @@ from ..capture.naming import name_list
 from ..errors import PoseError
 from ..jobs import CancelToken, ProgressCallback, check
 from .align import Similarity, fit_pose_similarity, rotation_angle_deg
-from .process import run_worker, worker_command
+from .process import run_pose_job
 
 STATUS_REFINED = "refined"
 STATUS_REFUSED = "refused"
@@ -218,21 +216,8 @@ def refine_poses(
         "rounds": int(options.rounds),
         "loose_angle_deg": float(options.expected_error_deg),
     }
-    try:
-        job_path = work / "job.json"
-        job_path.write_text(json.dumps(job))
-        run_worker(worker_command(job_path), progress=progress, cancel=cancel, log_path=work / "colmap.log",
-                   task="pose refinement")
-        try:
-            result = json.loads((work / "result.json").read_text())
-            with np.load(work / "points.npz") as npz:
-                xyz, rgb = npz["xyz"], npz["rgb"]
-        except (OSError, ValueError) as error:
-            raise PoseError(f"the pose refinement process ended without a usable result ({error}); "
-                            "run again with a work_dir to keep its log (colmap.log)") from error
-    finally:
-        if options.work_dir is None:
-            shutil.rmtree(work, ignore_errors=True)
+    result, xyz, rgb = run_pose_job(job, work, keep_work=options.work_dir is not None, task="pose refinement",
+                                    progress=progress, cancel=cancel)
     return _accepted(capture, posed_index, given, names, result, xyz, rgb, options)
 
 

@@ -21,8 +21,6 @@ Choices (measured in platform-notes section 1 and on the fox photos):
 
 from __future__ import annotations
 
-import json
-import shutil
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -37,7 +35,7 @@ from ..errors import PoseError
 from ..jobs import CancelToken, ProgressCallback, check
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .gravity import Alignment, KnownDistance, align_gravity_and_scale
-from .process import run_worker, worker_command
+from .process import run_pose_job
 from .quality import quality_warnings, radial_corner_shift, significant_distortion
 
 MATCHERS = ("auto", "sequential", "exhaustive")
@@ -188,20 +186,8 @@ def estimate_poses(
         # groups of a quarter of the photos (3 to 10, COLMAP's default) so the report names them.
         "min_model_size": max(3, min(10, len(names) // 4)),
     }
-    try:
-        job_path = work / "job.json"
-        job_path.write_text(json.dumps(job, indent=1))
-        run_worker(worker_command(job_path), progress=progress, cancel=cancel, log_path=work / "colmap.log")
-        try:
-            result = json.loads((work / "result.json").read_text())
-            with np.load(work / "points.npz") as npz:
-                xyz, rgb = npz["xyz"], npz["rgb"]
-        except (OSError, ValueError) as error:
-            raise PoseError(f"the structure-from-motion process ended without a usable result ({error}); "
-                            "run again with a work_dir to keep its log (colmap.log)") from error
-    finally:
-        if options.work_dir is None:
-            shutil.rmtree(work, ignore_errors=True)
+    result, xyz, rgb = run_pose_job(job, work, keep_work=options.work_dir is not None, task="structure from motion",
+                                    progress=progress, cancel=cancel)
 
     if not result["model_sizes"]:
         db = result["database"]
