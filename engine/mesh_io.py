@@ -141,13 +141,18 @@ def write_obj(
     faces: np.ndarray,
     normals: Optional[np.ndarray] = None,
     colors: Optional[np.ndarray] = None,
+    uvs: Optional[np.ndarray] = None,
+    material: Optional[tuple[str, str]] = None,
 ) -> None:
     """Write a Wavefront OBJ. vertices (V, 3); faces (F, 3) 0-based; normals (V, 3) or None;
     colors (V, 3) float 0..1 or uint8, written as the common `v x y z r g b` extension (read by
-    Blender, MeshLab and Open3D)."""
+    Blender, MeshLab and Open3D); uvs (V, 2) per-vertex texture coordinates (v up, as OBJ wants) or
+    None; material: (MTL file name, material name) for `mtllib` / `usemtl`, or None."""
     vertices = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     lines = ["# written by VoRTX for Blender"]
+    if material is not None:
+        lines.append(f"mtllib {material[0]}")
     if colors is not None:
         rgb = _colors_to_uint8(colors).astype(np.float64) / 255.0
         _check_rows("colors", rgb, len(vertices))
@@ -155,14 +160,21 @@ def write_obj(
                   for (x, y, z), (r, g, b) in zip(vertices, rgb)]
     else:
         lines += [f"v {x:.6f} {y:.6f} {z:.6f}" for x, y, z in vertices]
-    one_based = faces + 1
+    if uvs is not None:
+        uvs = np.asarray(uvs, dtype=np.float64).reshape(-1, 2)
+        _check_rows("uvs", uvs, len(vertices))
+        lines += [f"vt {u:.6f} {v:.6f}" for u, v in uvs]
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
         _check_rows("normals", normals, len(vertices))
         lines += [f"vn {x:.5f} {y:.5f} {z:.5f}" for x, y, z in normals]
-        lines += [f"f {a}//{a} {b}//{b} {c}//{c}" for a, b, c in one_based]
-    else:
-        lines += [f"f {a} {b} {c}" for a, b, c in one_based]
+    if material is not None:
+        lines.append(f"usemtl {material[1]}")
+    # Every vertex has its own uv and normal, so one index serves all three (OBJ's v/vt/vn).
+    corner = {(True, True): "{0}/{0}/{0}", (True, False): "{0}/{0}", (False, True): "{0}//{0}",
+              (False, False): "{0}"}[(uvs is not None, normals is not None)]
+    template = " ".join([corner.replace("0", str(k)) for k in range(3)])
+    lines += ["f " + template.format(a, b, c) for a, b, c in faces + 1]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text("\n".join(lines) + "\n")

@@ -57,7 +57,8 @@ SITE_PACKAGES = "site-packages"  # the folder name under extension_path_user
 
 # Import name -> distribution, for everything the engine imports inside Blender jobs: loading
 # captures (cv2, PIL), structure from motion (pycolmap), the network (torch, safetensors), marching
-# cubes (skimage). Training/CLI-only packages (tqdm, efficientnet weights, scipy for eval) are not here.
+# cubes (skimage), the texture bake's UV atlas (xatlas) and the VR preset's decimation
+# (fast_simplification). Training/CLI-only packages (tqdm, efficientnet weights, scipy for eval) are not here.
 RUNTIME_MODULES: dict[str, str] = {
     "torch": "torch",
     "cv2": "opencv-python-headless",
@@ -65,6 +66,8 @@ RUNTIME_MODULES: dict[str, str] = {
     "pycolmap": "pycolmap",
     "skimage": "scikit-image",
     "safetensors": "safetensors",
+    "xatlas": "xatlas",
+    "fast_simplification": "fast-simplification",
 }
 # Distributions Blender itself provides; never installed, whatever the resolver says.
 BLENDER_PROVIDED: frozenset[str] = frozenset({"numpy"})

@@ -30,6 +30,7 @@ from typing import Any, Optional
 import bpy
 import numpy as np
 
+from ..engine.colour_space import linear_to_srgb, srgb_to_linear  # noqa: F401 (re-exported)
 from ..engine.mesh_io import Mesh
 from ..engine.observation import EVIDENCE_ATTRIBUTES, observation_colours
 
@@ -87,24 +88,6 @@ def extension_version() -> str:
             return str(tomllib.load(f)["version"])
     except (OSError, KeyError, tomllib.TOMLDecodeError):
         return "unknown"
-
-
-# --- colour conversion ------------------------------------------------------------------------------
-
-
-def srgb_to_linear(values: np.ndarray) -> np.ndarray:
-    """The sRGB transfer function's inverse (IEC 61966-2-1), elementwise, float32."""
-    c = np.asarray(values, dtype=np.float32)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4).astype(np.float32)
-
-
-def linear_to_srgb(values: np.ndarray) -> np.ndarray:
-    """The sRGB transfer function (inverse of `srgb_to_linear`), elementwise, float32.
-
-    Used instead of Blender's `color_srgb`, which converts through a lookup table (off by up to 1e-4).
-    """
-    c = np.clip(np.asarray(values, dtype=np.float32), 0.0, None)
-    return np.where(c <= 0.0031308, c * 12.92, 1.055 * c ** (1 / 2.4) - 0.055).astype(np.float32)
 
 
 # --- mesh datablock ---------------------------------------------------------------------------------

@@ -24,12 +24,15 @@ from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import SFM_IF_UNPOSED, PreparedCapture, prepare_capture
 from .settings import ReconSettings, add_setting_arguments, settings_from_arguments
 
-MESH_SUFFIXES = (".ply", ".obj")
+MESH_SUFFIXES = (".ply", ".obj", ".glb")  # .glb and .obj are textured (engine/texture), .ply has vertex colours
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("capture", type=Path, help="capture folder (any layout `python -m engine info` reads), with poses")
-    parser.add_argument("--out", type=Path, required=True, help="output mesh, .ply or .obj (a .json sidecar is written beside it)")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="output mesh: .ply (every face, vertex colours), or a textured VR-ready result: .glb (one file, "
+                             "texture embedded) or .obj (+ .mtl + _texture.png), decimated to --face-budget; a .json "
+                             "sidecar is written beside it")
     add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="metres above the floor, for the scale of captures whose poses are not metric "
@@ -45,12 +48,10 @@ def settings_from_args(args: argparse.Namespace) -> ReconSettings:
 
 
 def write_mesh(path: Path, mesh: Any) -> None:
-    from ..mesh_io import write_obj, write_ply
+    """A PLY with vertex colours and the confidence layer (the textured formats: engine/texture/files.py)."""
+    from ..mesh_io import write_ply
 
-    if path.suffix.lower() == ".ply":
-        write_ply(path, mesh.vertices, mesh.faces, normals=mesh.normals, colors=mesh.colors, attributes=mesh.attributes)
-    else:  # OBJ has no place for per-vertex attributes
-        write_obj(path, mesh.vertices, mesh.faces, normals=mesh.normals, colors=mesh.colors)
+    write_ply(path, mesh.vertices, mesh.faces, normals=mesh.normals, colors=mesh.colors, attributes=mesh.attributes)
 
 
 def sidecar_path(mesh_path: Path) -> Path:
@@ -69,7 +70,7 @@ def report_preparation(prepared: PreparedCapture) -> None:
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if out.suffix.lower() not in MESH_SUFFIXES:
-        raise VortxError(f"--out {out}: the mesh file must end in .ply or .obj")
+        raise VortxError(f"--out {out}: the mesh file must end in .ply, .obj or .glb")
     settings = settings_from_args(args)
     settings.validate()
 
@@ -88,10 +89,27 @@ def run(args: argparse.Namespace) -> int:
         report_preparation(prepared)
         capture = prepared.capture
         result = reconstruct(capture, settings, progress=progress)
+        textured = None
+        if out.suffix.lower() != ".ply" and not result.is_empty:
+            from ..texture.views import views_from_capture
+            from ..texture.vr import textured_result
+
+            textured, texture_stats = textured_result(result.mesh, views_from_capture(capture),
+                                                      settings.texture_options, progress)
+            result.stats["texture"] = texture_stats
     finally:
         progress.close()
 
-    write_mesh(out, result.mesh)
+    if textured is not None:
+        from ..texture.files import write_textured
+
+        written = write_textured(out, textured, extras={"vortx_settings": settings.to_dict()})
+    elif out.suffix.lower() == ".ply":
+        write_mesh(out, result.mesh)
+    else:  # nothing to texture: an empty PLY beside the sidecar says so, and no stale file of an earlier run stays
+        out.unlink(missing_ok=True)
+        out = out.with_suffix(".ply")
+        write_mesh(out, result.mesh)
     sidecar = {
         "capture": str(Path(args.capture).resolve()),
         "capture_format": capture.format,
@@ -109,6 +127,12 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: no surface was reconstructed: {result.message}. Wrote an empty {out} and {sidecar_path(out)}.",
               file=sys.stderr)
         return 1
+    if textured is not None:
+        texture = result.stats["texture"]
+        print(f"wrote {', '.join(str(p) for p in written)}: {texture['faces']} faces (of {len(result.mesh.faces)}), "
+              f"{texture['texture_size']} px texture, in {seconds + texture['timings_s']['total']:.1f} s "
+              f"(details in {sidecar_path(out)})")
+        return 0
     print(f"wrote {out}: {len(result.mesh.vertices)} vertices, {len(result.mesh.faces)} faces in {seconds:.1f} s "
           f"(details in {sidecar_path(out)})")
     return 0

@@ -46,31 +46,56 @@ def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bottom * fy
 
 
-def visible_vertices(
-    mesh: Mesh, view: ColourView, depth: np.ndarray, tolerance: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Which vertices `view` sees: (ids (M,) int64, u (M,), v (M,), cosine (M,)).
+def visible_points(
+    points: np.ndarray, normals: np.ndarray, K: np.ndarray, pose: np.ndarray, image_size: tuple[int, int],
+    depth: np.ndarray, tolerance: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Which surface points a camera sees: (ids (M,) int64, u (M,), v (M,), cosine (M,), z (M,)).
 
-    Seen = in front, inside the image, facing the camera (cos > MIN_COSINE, needs normals pointing to
-    free space) and no farther than `tolerance` + 2 % of the depth behind the rendered surface.
-    `depth` may have fewer pixels than `view.image` (same field of view); u, v are image pixels.
+    points, normals (N, 3) world (normals point to free space); K in pixels of an image of
+    `image_size` = (w, h); `depth` (dh, dw) the mesh's depth map from that camera, same field of view,
+    any resolution. Seen = in front, inside the image, facing the camera (cos > MIN_COSINE) and no
+    farther than `tolerance` + 2 % of the depth behind the rendered surface. The one occlusion test of
+    vertex colours and the texture bake.
     """
-    h, w = view.image.shape[:2]
+    w, h = image_size
     dh, dw = depth.shape
-    cam = world_to_camera(mesh.vertices, view.pose)
+    cam = world_to_camera(points, pose)
     z = cam[:, 2]
     ids = np.flatnonzero(z > NEAR_PLANE)
-    u, v = camera_to_pixels(cam[ids], view.K)
+    u, v = camera_to_pixels(cam[ids], K)
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     col = np.minimum(np.floor(u * (dw / w)).astype(np.int64), dw - 1)
     row = np.minimum(np.floor(v * (dh / h)).astype(np.int64), dh - 1)
     ids, u, v, col, row = ids[inside], u[inside], v[inside], col[inside], row[inside]
-    to_camera_dir = view.pose[:3, 3] - mesh.vertices[ids].astype(np.float64)
+    to_camera_dir = pose[:3, 3] - points[ids].astype(np.float64)
     to_camera_dir /= np.linalg.norm(to_camera_dir, axis=1, keepdims=True)
-    cosine = np.einsum("nd,nd->n", mesh.normals[ids].astype(np.float64), to_camera_dir)
+    cosine = np.einsum("nd,nd->n", normals[ids].astype(np.float64), to_camera_dir)
     unoccluded = z[ids] <= depth[row, col] + tolerance + 0.02 * z[ids]
     keep = unoccluded & (cosine > MIN_COSINE)
-    return ids[keep], u[keep], v[keep], cosine[keep]
+    return ids[keep], u[keep], v[keep], cosine[keep], z[ids][keep]
+
+
+def visible_vertices(
+    mesh: Mesh, view: ColourView, depth: np.ndarray, tolerance: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Which vertices `view` sees: (ids (M,) int64, u (M,), v (M,), cosine (M,)); see `visible_points`.
+
+    `depth` may have fewer pixels than `view.image` (same field of view); u, v are image pixels.
+    """
+    h, w = view.image.shape[:2]
+    ids, u, v, cosine, _ = visible_points(mesh.vertices, mesh.normals, view.K, view.pose, (w, h), depth, tolerance)
+    return ids, u, v, cosine
+
+
+def occlusion_depth(mesh: Mesh, K: np.ndarray, pose: np.ndarray, image_size: tuple[int, int],
+                    long_side: int = DEPTH_LONG_SIDE) -> np.ndarray:
+    """The mesh's depth map from a camera whose K is in pixels of `image_size` = (w, h), rendered at
+    (at most) `long_side` pixels: the occlusion map of `visible_points`."""
+    w, h = image_size
+    scale = min(1.0, long_side / max(w, h))
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    return render_depth(mesh.vertices, mesh.faces, scale_intrinsics(K, (w, h), size), pose, size)
 
 
 def colour_vertices(mesh: Mesh, views: list[ColourView], tolerance: float) -> np.ndarray:
@@ -86,10 +111,7 @@ def colour_vertices(mesh: Mesh, views: list[ColourView], tolerance: float) -> np
         h, w = view.image.shape[:2]
         # Occlusion is resolved at <= DEPTH_LONG_SIDE pixels: about 2 cm per pixel at 3 m, finer than
         # the tolerance, at a quarter of the rasterisation cost of a 320-pixel image.
-        scale = min(1.0, DEPTH_LONG_SIDE / max(w, h))
-        size = (max(1, round(w * scale)), max(1, round(h * scale)))
-        K_depth = scale_intrinsics(view.K, (w, h), size)
-        depth = render_depth(mesh.vertices, mesh.faces, K_depth, view.pose, size)
+        depth = occlusion_depth(mesh, view.K, view.pose, (w, h))
         ids, u, v, cosine = visible_vertices(mesh, view, depth, tolerance)
         total[ids] += cosine[:, None] * _bilinear(view.image, u, v)
         weight[ids] += cosine

@@ -14,6 +14,7 @@ from typing import Any, Optional
 
 from ..errors import VortxError
 from ..stereo.options import StereoOptions  # the stereo defaults live with the stereo code
+from ..texture.options import TEXTURE_SIZES, TextureOptions  # and the texture bake's with the bake
 
 # Each level is twice as coarse as the next: coarse / medium / fine = 4x / 2x / 1x the finest voxel.
 LEVEL_SCALES: tuple[int, int, int] = (4, 2, 1)
@@ -132,6 +133,22 @@ class ReconSettings:
         "filters most outliers, and a strict check loses more surface than noise)",
         (CLI, BLENDER), min=0, max=10, label="Consistency Views")
 
+    # The textured result (engine/texture): GLB / OBJ files, Blender's Bake Texture, the VR preset.
+    texture_size: int = setting(
+        TextureOptions.texture_size, "side of the baked texture in texels: 4096 for desktop VR, 2048 for mobile "
+        "headsets (one of " + ", ".join(map(str, TEXTURE_SIZES)) + ")", (CLI, BLENDER), min=min(TEXTURE_SIZES),
+        max=max(TEXTURE_SIZES), label="Texture Size")
+    face_budget: int = setting(
+        TextureOptions.face_budget, "a textured result is decimated to at most this many faces before the bake "
+        "(0 = keep every face)", (CLI, BLENDER), min=0, max=10_000_000, label="Face Budget")
+
+    @property
+    def texture_options(self) -> TextureOptions:
+        """The bake's options: this run's texture size and face budget, the occlusion tolerance of its
+        vertex colours (two voxels), the rest at their defaults."""
+        return TextureOptions(texture_size=self.texture_size, face_budget=self.face_budget,
+                              occlusion_tolerance=2 * self.voxel_size)
+
     @property
     def colour(self) -> bool:
         """Colour the vertices from the photos (colour_views 0 = a grey mesh)."""
@@ -164,6 +181,7 @@ class ReconSettings:
             raise VortxError("maximum room size and frustum depth must be positive")
         for f in fields(self):  # the limits and choices every entry point offers
             _check_limits(f, getattr(self, f.name))
+        self.texture_options.validate()
 
     def to_dict(self) -> dict[str, Any]:
         data = asdict(self)
@@ -217,9 +235,12 @@ def cli_flag(f: Field) -> str:
     return f.metadata["flag"] or "--" + f.name.replace("_", "-")
 
 
-def add_setting_arguments(parser: argparse.ArgumentParser) -> None:
-    """One flag per CLI field of ReconSettings, with its help, default, type, choices and nargs."""
+def add_setting_arguments(parser: argparse.ArgumentParser, only: Optional[tuple[str, ...]] = None) -> None:
+    """One flag per CLI field of ReconSettings (or of the fields named in `only`), with its help,
+    default, type, choices and nargs."""
     for f in setting_fields(CLI):
+        if only is not None and f.name not in only:
+            continue
         meta, kind, default = f.metadata, value_type(f), field_default(f)
         shown = meta["default_text"] or "%(default)s"
         help_text = meta["help"].replace("%", "%%")  # argparse formats help with %

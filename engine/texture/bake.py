@@ -1,0 +1,193 @@
+"""The texture bake: every texel's colour from the full-resolution photos that see its surface point.
+
+For each texel (texels.py) and each photo: the occlusion test the vertex colours use
+(`recon.colour.visible_points`, against the mesh's own depth map), then a weight
+
+    w = cos(viewing angle) * (focal px / depth)^2 * sharpness,
+
+the texel's footprint in the photo (closer and more frontal views show more detail) times how sharp
+the photo is. Colours are sampled bilinearly at full resolution, converted to linear light, multiplied
+by the photo's exposure gain (exposure.py) and blended with weights w^blend_power: the best view
+dominates, so small pose errors do not ghost, and the weights change smoothly over the surface, so
+view changes and chart borders do not step. A texel's weights depend on its 3D point only, so both
+sides of a chart seam (the same surface points) get the same colour: the seams are levelled by
+construction. Texels no photo sees take the mesh's vertex colours. Gutters around the charts are
+filled with their border colours, so bilinear filtering and mipmaps do not pull in black.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Optional, Sequence
+
+import cv2
+import numpy as np
+
+from ..colour_space import SRGB_BYTE_TO_LINEAR, linear_to_srgb
+from ..geometry.cameras import scale_intrinsics
+from ..jobs import CancelToken, ProgressCallback, check, report
+from ..mesh_io import Mesh
+from ..recon.colour import UNSEEN_GREY, occlusion_depth, visible_points
+from .atlas import uv_atlas
+from .exposure import ViewSamples, exposure_gains
+from .options import TextureOptions
+from .texels import Texels, rasterise_uv
+from .textured_mesh import TexturedMesh
+from .views import TextureView, sharpness, sharpness_weights
+
+TEXELS_PER_CHUNK = 1_000_000  # bounds each photo's per-texel temporaries to ~100 MB
+REMAP_WIDTH = 4096  # cv2.remap takes maps of at most 32767 columns: sample points are laid out in rows
+
+
+def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(N, 3) float32 sRGB 0..255 at pixel coordinates u, v (pixel (0, 0) covers [0, 1)^2), edge-clamped."""
+    n = len(u)
+    if n == 0:
+        return np.zeros((0, 3), np.float32)
+    rows = -(-n // REMAP_WIDTH)
+    map_x = np.zeros(rows * REMAP_WIDTH, np.float32)
+    map_y = np.zeros(rows * REMAP_WIDTH, np.float32)
+    map_x[:n], map_y[:n] = u - 0.5, v - 0.5  # cv2 puts integer coordinates at pixel centres
+    out = cv2.remap(image, map_x.reshape(rows, REMAP_WIDTH), map_y.reshape(rows, REMAP_WIDTH),
+                    interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1, 3)[:n].astype(np.float32)
+
+
+def _to_linear(srgb_0_255: np.ndarray) -> np.ndarray:
+    """Bilinearly sampled sRGB values (0..255, fractional) -> linear, interpolating the byte table."""
+    low = np.clip(np.floor(srgb_0_255).astype(np.int64), 0, 254)
+    frac = np.clip(srgb_0_255 - low, 0.0, 1.0)
+    return SRGB_BYTE_TO_LINEAR[low] * (1 - frac) + SRGB_BYTE_TO_LINEAR[low + 1] * frac
+
+
+def fill_gutters(image: np.ndarray, filled: np.ndarray, passes: int) -> np.ndarray:
+    """Grow the colours of `filled` texels (H, W) bool outwards by `passes` texels (each empty texel
+    takes the mean of its filled 3 x 3 neighbours); whatever is still empty gets the mean colour."""
+    image = image.astype(np.float32).copy()
+    mask = filled.astype(np.float32)
+    for _ in range(passes):
+        total = cv2.boxFilter(image * mask[..., None], -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        count = cv2.boxFilter(mask, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT)
+        grow = (mask == 0) & (count > 0)
+        if not grow.any():
+            break
+        image[grow] = total[grow] / count[grow][:, None]
+        mask[grow] = 1.0
+    empty = mask == 0
+    if empty.any() and (~empty).any():
+        image[empty] = image[~empty].mean(axis=0)
+    return image
+
+
+def _exposure_and_occlusion(mesh: Mesh, views: Sequence[TextureView], options: TextureOptions,
+                            progress: Optional[ProgressCallback], cancel: Optional[CancelToken],
+                            ) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
+    """First pass over the photos: each one's occlusion depth map, sharpness and the vertex samples that
+    give its exposure gain. -> (depth maps, sharpness weights (n,), gains (n, 3))."""
+    depths, scores, samples = [], [], []
+    for i, view in enumerate(views):
+        check(cancel)
+        report(progress, "texture: photos", i, len(views))
+        image = view.load()
+        scores.append(sharpness(image))
+        depth = occlusion_depth(mesh, view.K, view.pose, view.size, options.occlusion_long_side)
+        depths.append(depth)
+        if options.exposure:
+            # Samples from a copy at the occlusion size: exposure is a smooth, whole-photo property.
+            dh, dw = depth.shape
+            small = cv2.resize(image, (dw, dh), interpolation=cv2.INTER_AREA)
+            K_small = scale_intrinsics(view.K, view.size, (dw, dh))
+            ids, u, v, cosine, _ = visible_points(mesh.vertices, mesh.normals, K_small, view.pose, (dw, dh), depth,
+                                                  options.occlusion_tolerance)
+            samples.append(ViewSamples(ids, _to_linear(sample_bilinear(small, u, v)), cosine))
+    report(progress, "texture: photos", len(views), len(views))
+    gains = exposure_gains(samples, len(mesh.vertices)) if options.exposure else np.ones((len(views), 3), np.float32)
+    return depths, sharpness_weights(scores), gains
+
+
+def bake_colours(mesh: Mesh, texels: Texels, views: Sequence[TextureView], options: TextureOptions,
+                 progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
+                 ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Linear colours (N, 3) float32 of the texels and which of them a photo saw (N,) bool, plus stats.
+
+    mesh: the surface (vertices, faces, normals pointing to free space) the texels lie on.
+    """
+    points = texels.interpolate(mesh.vertices, mesh.faces)
+    normals = texels.interpolate(mesh.normals, mesh.faces)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    depths, sharp, gains = _exposure_and_occlusion(mesh, views, options, progress, cancel)
+    total = np.zeros((len(texels), 3), np.float32)
+    weight = np.zeros(len(texels), np.float32)
+    for i, view in enumerate(views):
+        check(cancel)
+        report(progress, "texture: bake", i, len(views))
+        image = view.load()
+        focal = float(np.sqrt(view.K[0, 0] * view.K[1, 1]))
+        for start in range(0, len(texels), TEXELS_PER_CHUNK):
+            chunk = slice(start, start + TEXELS_PER_CHUNK)
+            ids, u, v, cosine, z = visible_points(points[chunk], normals[chunk], view.K, view.pose, view.size,
+                                                  depths[i], options.occlusion_tolerance)
+            if len(ids) == 0:
+                continue
+            w = (cosine * (focal / z) ** 2 * sharp[i]) ** options.blend_power
+            w = (w / (focal ** (2 * options.blend_power))).astype(np.float32)  # keeps float32 in range
+            colour = _to_linear(sample_bilinear(image, u, v)) * gains[i]
+            ids = ids + start
+            total[ids] += w[:, None] * colour
+            weight[ids] += w
+    report(progress, "texture: bake", len(views), len(views))
+    seen = weight > 0
+    colours = np.zeros((len(texels), 3), np.float32)
+    colours[seen] = total[seen] / weight[seen, None]
+    stats = {"views": len(views), "texels": int(len(texels)), "texels_seen": int(seen.sum()),
+             "exposure_gains": {"min": np.round(gains.min(axis=0), 3).tolist(), "max": np.round(gains.max(axis=0), 3).tolist()},
+             "sharpness_weights": {"min": round(float(sharp.min()), 3), "median": round(float(np.median(sharp)), 3)}}
+    return colours, seen, stats
+
+
+def bake_texture(mesh: Mesh, views: Sequence[TextureView], options: TextureOptions,
+                 progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
+                 ) -> tuple[TexturedMesh, dict]:
+    """A UV atlas for `mesh` and its texture baked from `views`. -> (textured mesh, stats).
+
+    mesh: vertices, faces and normals pointing to free space (the engine's result meshes); colours,
+    if present, fill texels no photo sees.
+    """
+    options.validate()
+    started, timings = time.perf_counter(), {}
+    report(progress, "texture: atlas", 0, 1)
+    atlas = uv_atlas(mesh.vertices, mesh.faces, mesh.normals, options.texture_size, options.padding)
+    timings["atlas"] = time.perf_counter() - started
+    report(progress, "texture: atlas", 1, 1)
+    check(cancel)
+    size = (options.texture_size, options.texture_size)
+    mark = time.perf_counter()
+    texels = rasterise_uv(atlas.uvs, atlas.faces, size)
+    timings["texels"] = time.perf_counter() - mark
+    mark = time.perf_counter()
+    # Texel points are interpolated on the source mesh: same faces, same order as the atlas's.
+    colours, seen, stats = bake_colours(mesh, texels, views, options, progress, cancel)
+    timings["bake"] = time.perf_counter() - mark
+    if mesh.colors is not None and (~seen).any():
+        fallback = texels.interpolate(np.asarray(mesh.colors, np.float32), mesh.faces)
+        colours[~seen] = SRGB_BYTE_TO_LINEAR[np.clip(np.round(fallback[~seen] * 255), 0, 255).astype(np.int64)]
+    elif (~seen).any():
+        colours[~seen] = SRGB_BYTE_TO_LINEAR[round(UNSEEN_GREY * 255)]
+    W, H = size
+    image = np.zeros((H, W, 3), np.float32)
+    filled = np.zeros((H, W), bool)
+    image[texels.rows, texels.cols] = linear_to_srgb(colours)
+    filled[texels.rows, texels.cols] = True
+    texture = np.clip(np.round(fill_gutters(image, filled, 2 * options.padding + 2) * 255), 0, 255).astype(np.uint8)
+    source = atlas.source_vertex
+    textured = TexturedMesh(
+        vertices=np.asarray(mesh.vertices, np.float32)[source], faces=atlas.faces,
+        normals=np.asarray(mesh.normals, np.float32)[source], uvs=atlas.uvs, texture=texture,
+        colors=None if mesh.colors is None else np.asarray(mesh.colors, np.float32)[source],
+        attributes={k: np.asarray(v)[source] for k, v in mesh.attributes.items()}, source_vertex=source,
+    )
+    timings["total"] = time.perf_counter() - started
+    stats.update({"texture_size": options.texture_size, "charts": atlas.charts,
+                  "atlas_utilisation": round(atlas.utilisation, 4), "faces": int(len(atlas.faces)),
+                  "vertices": int(len(source)), "timings_s": {k: round(v, 3) for k, v in timings.items()}})
+    return textured, stats

@@ -1,0 +1,88 @@
+"""`python -m engine texture CAPTURE MESH --out room.glb`: bake a texture for an existing mesh.
+
+For a mesh made earlier (`engine reconstruct --out room.ply`), perhaps cleaned up elsewhere, and the
+capture it was made from. The capture is prepared exactly as `reconstruct` prepared it (Z up, the
+same scale), so its cameras see the mesh where it is; a posed capture written by `engine poses` or a
+metric one (ScanNet, ARKit) works as it is. With the VR preset's defaults the mesh is decimated to
+the face budget first. Writes a .glb (texture embedded) or .obj + .mtl + _texture.png, and a JSON
+sidecar with what the bake did.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from ..errors import VortxError
+from ..jobs import TqdmProgress
+from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
+from .files import TEXTURED_SUFFIXES
+
+TEXTURE_FLAGS = ("texture_size", "face_budget")
+LITTLE_SEEN = 0.05  # below this share of the texels seen by a photo, the capture and mesh do not match
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    from ..recon.settings import add_setting_arguments
+
+    parser.add_argument("capture", type=Path, help="the capture the mesh was reconstructed from (with poses)")
+    parser.add_argument("mesh", type=Path, help="the mesh (.ply, normals facing the cameras, as `reconstruct` writes it)")
+    parser.add_argument("--out", type=Path, required=True, help="the textured result: .glb (one file) or .obj "
+                                                                "(+ .mtl + _texture.png)")
+    add_setting_arguments(parser, only=TEXTURE_FLAGS)
+    parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
+                        help="as given to `reconstruct`, for captures whose poses are not metric (default %(default)s)")
+    parser.add_argument("--voxel-size", type=float, default=0.04,
+                        help="the voxel size the mesh was made at: two voxels are the occlusion test's tolerance "
+                             "(default %(default)s)")
+    parser.add_argument("--exclude", nargs="*", default=[], metavar="PHOTO",
+                        help="photos (file names or stems) not to bake from, e.g. held out for checking")
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..capture import load_capture
+    from ..mesh_io import read_ply
+    from ..poses.prepare import SFM_NEVER, prepare_capture
+    from ..recon.settings import ReconSettings
+    from .views import views_from_capture
+    from .vr import textured_result
+    from .files import write_textured
+
+    if args.out.suffix.lower() not in TEXTURED_SUFFIXES:
+        raise VortxError(f"--out {args.out}: a textured result is written as .glb or .obj")
+    if args.mesh.suffix.lower() != ".ply" or not args.mesh.is_file():
+        raise VortxError(f"{args.mesh}: give the mesh as a .ply file (as `python -m engine reconstruct` writes it)")
+    settings = ReconSettings(texture_size=args.texture_size, face_budget=args.face_budget, voxel_size=args.voxel_size)
+    settings.validate()
+    mesh = read_ply(args.mesh)
+    if mesh.normals is None:
+        from ..recon.mesh import vertex_normals
+
+        mesh.normals = vertex_normals(mesh.vertices, mesh.faces)
+    capture = load_capture(args.capture)
+    for warning in capture.warnings:
+        print(f"warning: {warning}", file=sys.stderr)
+    prepared = prepare_capture(capture, camera_height=args.camera_height, sfm=SFM_NEVER)
+    views = views_from_capture(prepared.capture, exclude=args.exclude)
+    progress = TqdmProgress(disable=args.quiet)
+    try:
+        textured, stats = textured_result(mesh, views, settings.texture_options, progress)
+    finally:
+        progress.close()
+    written = write_textured(args.out, textured)
+    return report_texture(args.out, written, stats)
+
+
+def report_texture(out: Path, written: list[Path], stats: dict) -> int:
+    """Sidecar beside `out` and one line for the user; a warning when the photos saw little of the mesh."""
+    out.with_suffix(".json").write_text(json.dumps({"texture": stats, "files": [str(p) for p in written]}, indent=1) + "\n")
+    seen = stats["texels_seen"] / max(stats["texels"], 1)
+    if seen < LITTLE_SEEN:
+        print(f"warning: the photos saw only {100 * seen:.1f} % of the surface; is the capture the one the mesh was "
+              "made from, with the same poses?", file=sys.stderr)
+    print(f"wrote {', '.join(p.name for p in written)}: {stats['faces']} faces, {stats['texture_size']} px texture, "
+          f"{100 * seen:.0f} % of it seen by the photos, in {stats['timings_s']['total']:.1f} s")
+    return 0

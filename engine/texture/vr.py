@@ -1,0 +1,64 @@
+"""The VR preset: a light mesh a headset can draw, textured from the photos.
+
+Drop small pieces (specks in the air), decimate to a face budget (quadric edge collapse,
+fast-simplification), then the atlas and the bake (bake.py). Decimation moves and merges vertices,
+so the vertex colours and the confidence layer are carried over from the nearest source vertex.
+"""
+
+from __future__ import annotations
+
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..jobs import CancelToken, ProgressCallback, check, report
+from ..mesh_io import Mesh
+from ..meshops import remove_small_pieces
+from ..recon.mesh import compact, vertex_normals
+from .bake import bake_texture
+from .options import TextureOptions
+from .textured_mesh import TexturedMesh
+from .views import TextureView
+
+
+def decimate(mesh: Mesh, face_budget: int) -> Mesh:
+    """At most `face_budget` faces (0 or a budget above the mesh's faces: the mesh as it is)."""
+    if face_budget <= 0 or len(mesh.faces) <= face_budget:
+        return mesh
+    import fast_simplification
+    from scipy.spatial import cKDTree
+
+    points, faces = fast_simplification.simplify(np.asarray(mesh.vertices, np.float64),
+                                                 np.asarray(mesh.faces, np.int32), target_count=int(face_budget))
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    points, faces = compact(points, faces)
+    vertices = points.astype(np.float32)
+    faces = faces.astype(np.int32)
+    _, nearest = cKDTree(np.asarray(mesh.vertices, np.float64)).query(points)
+
+    def carried(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
+        return None if values is None else np.asarray(values)[nearest]
+
+    return Mesh(vertices=vertices, faces=faces, normals=vertex_normals(vertices, faces), colors=carried(mesh.colors),
+                attributes={k: carried(v) for k, v in mesh.attributes.items()})
+
+
+def vr_mesh(mesh: Mesh, options: TextureOptions) -> tuple[Mesh, dict]:
+    """Small pieces dropped, then decimated to the face budget. -> (mesh, stats)."""
+    light, pieces = remove_small_pieces(mesh, min_fraction=options.min_piece_fraction)
+    light = decimate(light, options.face_budget)
+    return light, {"faces_in": int(len(mesh.faces)), "pieces_removed": pieces.removed_pieces,
+                   "faces_after_pieces": int(len(mesh.faces) - pieces.removed_faces), "faces": int(len(light.faces))}
+
+
+def textured_result(mesh: Mesh, views: Sequence[TextureView], options: TextureOptions,
+                    progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
+                    ) -> tuple[TexturedMesh, dict]:
+    """The VR preset end to end: `vr_mesh`, then `bake_texture`. -> (textured mesh, stats)."""
+    options.validate()
+    report(progress, "texture: decimate", 0, 1)
+    light, stats = vr_mesh(mesh, options)
+    report(progress, "texture: decimate", 1, 1)
+    check(cancel)
+    textured, bake_stats = bake_texture(light, views, options, progress, cancel)
+    return textured, {"vr": stats, **bake_stats}
