@@ -2,9 +2,9 @@
 
 import bpy
 
-from . import capture, reconstruct
+from . import capture, reconstruct, texture
 
-classes: tuple = (*capture.classes, *reconstruct.classes)
+classes: tuple = (*capture.classes, *reconstruct.classes, *texture.classes)
 
 
 def register() -> None:

@@ -44,6 +44,10 @@ OBSERVATION_ATTRIBUTE = "Observation"  # the confidence layer's colours (FLOAT_C
 OBSERVATION_MATERIAL_TAG = "vortx_observation_colour"
 OBSERVATION_MATERIAL_NAME = "VoRTX Observation Colour"
 SHOW_OBSERVATION = "vortx_show_observation"  # the Object toggle (registered below)
+TEXTURE_MATERIAL_TAG = "vortx_texture_material"  # a baked result's own material (vortx_blender/texture.py)
+TEXTURE_MATERIAL_NAME = "VoRTX Texture"
+TEXTURE_NODE = "VoRTX Photo Texture"  # its Image Texture node
+TEXTURE_OBSERVATION_NODE = "VoRTX Observation"  # its Color Attribute node reading the confidence layer
 DECIMATE_MODIFIER = "VoRTX Decimate"
 
 # Custom properties on a result object.
@@ -200,8 +204,14 @@ def show_observation(obj: bpy.types.Object, show: bool) -> None:
     show = bool(show) and has_observation(mesh)
     show_colour_attribute(mesh, OBSERVATION_ATTRIBUTE if show else COLOUR_ATTRIBUTE)
     for index, material in enumerate(mesh.materials):
-        if material is not None and (material.get(MATERIAL_TAG) or material.get(OBSERVATION_MATERIAL_TAG)):
+        if material is None:
+            continue
+        if material.get(MATERIAL_TAG) or material.get(OBSERVATION_MATERIAL_TAG):
             mesh.materials[index] = observation_material() if show else vertex_colour_material()
+        elif material.get(TEXTURE_MATERIAL_TAG):
+            # A baked result keeps its own material (it holds the only reference to its texture):
+            # its base colour is switched between the photo texture and the observation colours.
+            show_texture_base_colour(material, observation=show)
 
 
 def shown_colour_attribute(mesh: bpy.types.Mesh) -> Optional[str]:
@@ -210,23 +220,33 @@ def shown_colour_attribute(mesh: bpy.types.Mesh) -> Optional[str]:
     return active.name if active is not None else None
 
 
-def _show_observation_changed(obj: bpy.types.Object, _context: bpy.types.Context) -> None:
-    show_observation(obj, getattr(obj, SHOW_OBSERVATION))
+def _show_observation_changed(obj: bpy.types.Object, context: bpy.types.Context) -> None:
+    show = getattr(obj, SHOW_OBSERVATION)
+    show_observation(obj, show)
+    if is_textured(obj):
+        # Solid mode draws either attribute colours or the material's image, not the material's links.
+        _solid_colour(context.screen, "VERTEX" if show and has_observation(obj.data) else "TEXTURE")
 
 
-def mesh_arrays(mesh: bpy.types.Mesh) -> Mesh:
+def mesh_arrays(mesh: bpy.types.Mesh, triangulate: bool = False) -> Mesh:
     """The triangle mesh of a Blender mesh as engine arrays (colours back in sRGB, normals None).
 
-    Polygons must be triangles (as VoRTX results and their decimations are).
+    Polygons must be triangles (as VoRTX results and their decimations are), unless `triangulate`:
+    then other polygons are split into Blender's own loop triangles (as its renderers draw them).
     """
     vertices = np.empty(3 * len(mesh.vertices), dtype=np.float32)
     mesh.attributes["position"].data.foreach_get("vector", vertices)
     sizes = np.empty(len(mesh.polygons), dtype=np.int32)
     mesh.polygons.foreach_get("loop_total", sizes)
     if len(sizes) and np.any(sizes != 3):
-        raise ValueError(f"mesh '{mesh.name}' has polygons that are not triangles")
-    corners = np.empty(len(mesh.loops), dtype=np.int32)
-    mesh.attributes[".corner_vert"].data.foreach_get("value", corners)
+        if not triangulate:
+            raise ValueError(f"mesh '{mesh.name}' has polygons that are not triangles")
+        mesh.calc_loop_triangles()
+        corners = np.empty(3 * len(mesh.loop_triangles), dtype=np.int32)
+        mesh.loop_triangles.foreach_get("vertices", corners)
+    else:
+        corners = np.empty(len(mesh.loops), dtype=np.int32)
+        mesh.attributes[".corner_vert"].data.foreach_get("value", corners)
     colors = None
     attribute = mesh.color_attributes.get(COLOUR_ATTRIBUTE)
     if attribute is not None and attribute.domain == "POINT":
@@ -267,8 +287,73 @@ def _colour_attribute_material(tag: str, name: str, attribute: str) -> bpy.types
     return material
 
 
+def texture_material(image: bpy.types.Image, observation: bool) -> bpy.types.Material:
+    """A new material for one baked result: the photo texture `image` as base colour (an Image
+    Texture node the glTF and OBJ exporters turn into the file's texture), matte (roughness 1,
+    metallic 0: the photos already hold the room's lighting). With `observation`, a Color Attribute
+    node reading the confidence layer too, which Show Observation links in instead of the image."""
+    material = bpy.data.materials.new(TEXTURE_MATERIAL_NAME)
+    try:
+        material[TEXTURE_MATERIAL_TAG] = True
+        material.use_nodes = True  # a no-op from 5.0 (always nodes), needed in 4.x
+        tree = material.node_tree
+        principled = next(node for node in tree.nodes if node.type == "BSDF_PRINCIPLED")
+        principled.inputs["Roughness"].default_value = 1.0
+        principled.inputs["Metallic"].default_value = 0.0
+        texture = tree.nodes.new("ShaderNodeTexImage")
+        texture.name = texture.label = TEXTURE_NODE
+        texture.image = image
+        texture.interpolation = "Linear"
+        texture.extension = "EXTEND"  # the atlas is padded; wrapping would bleed the opposite edge in
+        texture.location = (principled.location.x - 400, principled.location.y)
+        tree.nodes.active = texture  # solid mode's Texture colour shows the active image node
+        if observation:
+            colour = tree.nodes.new("ShaderNodeVertexColor")
+            colour.name = colour.label = TEXTURE_OBSERVATION_NODE
+            colour.layer_name = OBSERVATION_ATTRIBUTE
+            colour.location = (principled.location.x - 400, principled.location.y - 320)
+        tree.links.new(texture.outputs["Color"], principled.inputs["Base Color"])
+    except Exception:
+        bpy.data.materials.remove(material)
+        raise
+    return material
+
+
+def show_texture_base_colour(material: bpy.types.Material, observation: bool) -> None:
+    """Link the texture material's base colour to the observation colours (True) or the photo texture."""
+    tree = material.node_tree
+    source = tree.nodes.get(TEXTURE_OBSERVATION_NODE if observation else TEXTURE_NODE)
+    principled = next((node for node in tree.nodes if node.type == "BSDF_PRINCIPLED"), None)
+    if source is not None and principled is not None:
+        tree.links.new(source.outputs["Color"], principled.inputs["Base Color"])
+
+
+def texture_image_of(material: Optional[bpy.types.Material]) -> Optional[bpy.types.Image]:
+    """The photo texture of a baked result's material, or None for any other material."""
+    if material is None or not material.get(TEXTURE_MATERIAL_TAG) or material.node_tree is None:
+        return None
+    node = material.node_tree.nodes.get(TEXTURE_NODE)
+    return node.image if node is not None else None
+
+
+def is_textured(obj: bpy.types.Object) -> bool:
+    """Whether `obj` is a result with a baked photo texture (a UV map and the texture material)."""
+    mesh = obj.data
+    return (isinstance(mesh, bpy.types.Mesh) and len(mesh.uv_layers) > 0
+            and any(texture_image_of(material) is not None for material in mesh.materials))
+
+
 def show_vertex_colours(screen: Optional[bpy.types.Screen]) -> None:
     """Solid-mode 3D Views of `screen` show attribute colours (so the result looks like the room)."""
+    _solid_colour(screen, "VERTEX")
+
+
+def show_texture_colours(screen: Optional[bpy.types.Screen]) -> None:
+    """Solid-mode 3D Views of `screen` show the materials' images (a baked result's photo texture)."""
+    _solid_colour(screen, "TEXTURE")
+
+
+def _solid_colour(screen: Optional[bpy.types.Screen], color_type: str) -> None:
     if screen is None:
         return
     for area in screen.areas:
@@ -276,7 +361,7 @@ def show_vertex_colours(screen: Optional[bpy.types.Screen]) -> None:
             continue
         for space in area.spaces:
             if space.type == "VIEW_3D":
-                space.shading.color_type = "VERTEX"
+                space.shading.color_type = color_type
 
 
 # --- collection and objects -----------------------------------------------------------------------------
