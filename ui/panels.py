@@ -11,14 +11,20 @@ from typing import Any, Optional
 
 import bpy
 
+from ..engine.texture.options import MOBILE_TEXTURE_SIZE, TextureOptions
 from ..vortx_blender import jobs
 from ..vortx_blender import result as results
 from ..vortx_blender.jobs import Job
 from ..vortx_blender.properties import recon_property_names
+from ..vortx_blender.texture import bake_summary
 
 CATEGORY = "VoRTX"
-# Jobs whose progress the Reconstruction panel shows; the Capture panel shows the others.
+# Jobs whose progress the Reconstruction and Result panels show; the Capture panel shows the others.
 RECONSTRUCTION_JOBS = ("Reconstruct", "Preview Tiles")
+RESULT_JOBS = ("Bake Texture",)
+# What the Result panel says about the texture settings: the VR preset's defaults (engine/texture/options.py).
+VR_PRESET_TEXT = (f"VR preset: {TextureOptions.face_budget // 1000}k faces, {TextureOptions.texture_size} px "
+                  f"({MOBILE_TEXTURE_SIZE} px for mobile headsets)")
 
 
 def _value_row(layout: Any, label: str, value: str) -> None:
@@ -70,7 +76,7 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job]) -> None:
     row.operator("vortx.estimate_poses", icon="CAMERA_DATA")
     row.operator("vortx.refine_poses", icon="ORIENTATION_GIMBAL")
     layout.operator("vortx.set_scale", icon="DRIVER_DISTANCE")
-    if job is not None and job.title not in RECONSTRUCTION_JOBS:
+    if job is not None and job.title not in RECONSTRUCTION_JOBS + RESULT_JOBS:
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
 
 
@@ -117,8 +123,9 @@ def draw_tiles(layout: Any, settings: Any) -> None:
     row.operator("vortx.bake_tiles", icon="MOD_WIREFRAME")
 
 
-def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = None) -> None:
-    """`result`: the result object the observation toggle acts on (results.shown_result), or None."""
+def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = None, job: Optional[Job] = None) -> None:
+    """`result`: the result object the observation toggle and Bake Texture act on (results.shown_result),
+    or None; `job`: the running job (its progress is shown here when it is a bake)."""
     _settings_layout(layout)
     if result is not None:
         if results.has_observation(result.data):
@@ -133,11 +140,23 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
     row.operator("vortx.clean_result", icon="BRUSH_DATA")
     row.operator("vortx.export_result", icon="EXPORT")
 
+    layout.separator()
+    col = layout.column(align=True)
+    col.prop(settings, "texture_size")
+    col.prop(settings, "face_budget")
+    _wrapped(layout, VR_PRESET_TEXT, "INFO")
+    layout.operator("vortx.bake_texture", icon="TEXTURE")
+    if job is not None and job.title in RESULT_JOBS:
+        layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
+    baked = bake_summary(result) if result is not None else None
+    if baked is not None:
+        layout.label(text=f"Textured: {baked['texture_size']} px, {baked['stats'].get('faces', '?')} faces", icon="CHECKMARK")
 
-# Reconstruction settings laid out in the Reconstruction and Model panels; the stereo method's
+
+# Reconstruction settings laid out in the Reconstruction, Model and Result panels; the stereo method's
 # settings (stereo_*) appear in the Stereo panel and every other ReconSettings field offered to
 # Blender under Advanced, each by itself in declaration order.
-DRAWN_ELSEWHERE = ("method", "voxel_size", "view_count", "tile_size", "device", "seed")
+DRAWN_ELSEWHERE = ("method", "voxel_size", "view_count", "tile_size", "device", "seed", "texture_size", "face_budget")
 STEREO_PREFIX = "stereo_"
 
 
@@ -228,7 +247,8 @@ class VORTX_PT_result(_ReconstructionChild):
     bl_label = "Result"
 
     def draw(self, context: bpy.types.Context) -> None:
-        draw_result_settings(self.layout, context.scene.vortx, results.shown_result(context.scene, context.active_object))
+        draw_result_settings(self.layout, context.scene.vortx, results.shown_result(context.scene, context.active_object),
+                             jobs.active_job())
 
 
 class VORTX_PT_advanced(_ReconstructionChild):

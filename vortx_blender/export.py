@@ -10,13 +10,19 @@ All three keep metres (scale 1, modifiers and the object transform applied) and 
   same Z-up world coordinates. Vertex colours go into COLOR_0 (linear, as glTF requires), and the
   object's `vortx_*` custom properties into the node's extras (provenance travels with the file).
 
+A result with a baked photo texture (vortx_blender/texture.py) exports it instead of the vertex
+colours: glTF gets TEXCOORD_0 and a material whose base colour texture is the photo texture (PNG, as
+packed), and no COLOR_0 (glTF viewers multiply the base colour by COLOR_0, which would darken the
+texture by the photo colours a second time); OBJ gets its UVs, a .mtl and the texture copied beside
+it (<stem>_texture.png). PLY has no textures: it keeps the vertex colours.
+
 Exporters work on the selection, so the selection and active object are set for the call and put
 back afterwards.
 """
 
 from __future__ import annotations
 
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Iterator
 
@@ -68,6 +74,29 @@ def _photo_colours_shown(obj: bpy.types.Object) -> Iterator[None]:
             show_observation(obj, True)
 
 
+@contextmanager
+def _texture_file_beside(obj: bpy.types.Object, path: Path) -> Iterator[None]:
+    """The OBJ exporter copies a texture only from a file on disk, and a baked texture is packed into
+    the .blend: its PNG is written beside the .obj as <stem>_texture.png (the engine's OBJ name) and the
+    image points there while the exporter runs (path_mode STRIP writes that name into the .mtl)."""
+    from .result import texture_image_of
+
+    images = [image for image in map(texture_image_of, obj.data.materials) if image is not None]
+    saved = [(image, image.filepath_raw) for image in images]
+    try:
+        for index, image in enumerate(images):
+            target = path.with_name(f"{path.stem}_texture{'' if index == 0 else f'_{index}'}.png")
+            if image.packed_file is not None:
+                target.write_bytes(image.packed_file.data)
+            else:
+                image.save(filepath=str(target))
+            image.filepath_raw = str(target)
+        yield
+    finally:
+        for image, filepath in saved:
+            image.filepath_raw = filepath
+
+
 def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types.ViewLayer | None = None) -> Path:
     """Write `obj` to `path`; the format comes from the extension (.glb, .gltf, .ply, .obj).
 
@@ -79,8 +108,11 @@ def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types
         raise VortxError(f"cannot export to '{path.name}': use a .glb, .gltf, .ply or .obj file name")
     if obj.type != "MESH":
         raise VortxError(f"'{obj.name}' is not a mesh")
+    from .result import is_textured
+
     path.parent.mkdir(parents=True, exist_ok=True)
     view_layer = view_layer or bpy.context.view_layer
+    textured = is_textured(obj)
     with _only_selected(obj, view_layer), _photo_colours_shown(obj):
         if kind == "PLY":
             outcome = bpy.ops.wm.ply_export(
@@ -89,16 +121,19 @@ def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types
                 export_attributes=False, export_triangulated_mesh=True, ascii_format=False,
             )
         elif kind == "OBJ":
-            outcome = bpy.ops.wm.obj_export(
-                filepath=str(path), export_selected_objects=True, forward_axis="Y", up_axis="Z", global_scale=1.0,
-                apply_modifiers=True, apply_transform=True, export_normals=True, export_uv=False,
-                export_colors=True, export_materials=False, export_triangulated_mesh=True,
-            )
+            with _texture_file_beside(obj, path) if textured else nullcontext():
+                outcome = bpy.ops.wm.obj_export(
+                    filepath=str(path), export_selected_objects=True, forward_axis="Y", up_axis="Z", global_scale=1.0,
+                    apply_modifiers=True, apply_transform=True, export_normals=True, export_uv=textured,
+                    export_colors=not textured, export_materials=textured, path_mode="STRIP" if textured else "AUTO",
+                    export_triangulated_mesh=True,
+                )
         else:
             outcome = bpy.ops.export_scene.gltf(
                 filepath=str(path), export_format="GLB" if kind == "GLB" else "GLTF_SEPARATE", use_selection=True,
-                export_yup=True, export_apply=True, export_normals=True, export_texcoords=False,
-                export_vertex_color="ACTIVE", export_materials="EXPORT", export_extras=True,
+                export_yup=True, export_apply=True, export_normals=True, export_texcoords=textured,
+                export_vertex_color="NONE" if textured else "ACTIVE", export_materials="EXPORT",
+                export_image_format="AUTO", export_extras=True,
                 export_cameras=False, export_lights=False, export_animations=False,
             )
     if "FINISHED" not in outcome or not path.is_file():

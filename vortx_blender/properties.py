@@ -42,6 +42,7 @@ PRESENTATION: dict[str, dict[str, object]] = {
     "frustum_depth": {"subtype": "DISTANCE", "unit": "LENGTH"},
     "max_room_size": {"subtype": "XYZ", "unit": "LENGTH"},
     "image_long_side": {"subtype": "PIXEL"},
+    "texture_size": {"subtype": "PIXEL"},
 }
 
 MATCHER_ITEMS = [

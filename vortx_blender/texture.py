@@ -113,9 +113,8 @@ def bake_texture_job(request: BakeRequest) -> JobFunction:
     """A bpy-free job function: the VR preset and the bake on the request's mesh, the texture as PNG."""
 
     def run(progress: ProgressCallback, cancel: CancelToken) -> BakeOutcome:
-        import cv2
-
         from ..engine.recon.mesh import vertex_normals
+        from ..engine.texture.files import encode_png
         from ..engine.texture.views import views_from_capture
         from ..engine.texture.vr import textured_result
 
@@ -127,10 +126,7 @@ def bake_texture_job(request: BakeRequest) -> JobFunction:
                     colors=mesh.colors, attributes=mesh.attributes)
         textured, stats = textured_result(mesh, views, request.options, progress, cancel)
         cancel.check()
-        ok, png = cv2.imencode(".png", cv2.cvtColor(np.ascontiguousarray(textured.texture), cv2.COLOR_RGB2BGR))
-        if not ok:
-            raise VortxError("could not encode the baked texture as PNG")
-        return BakeOutcome(textured, png.tobytes(), stats)
+        return BakeOutcome(textured, encode_png(textured.texture), stats)
 
     return run
 

@@ -116,7 +116,7 @@ def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
         ("VORTX_PT_pose_settings", ["sfm_matcher", "sfm_max_image_side", "camera_height"]),
         ("VORTX_PT_model", ["weights_source", "device", "seed"]),
         ("VORTX_PT_tiles", ["show_tiles"]),
-        ("VORTX_PT_result", ["min_piece_faces", "min_piece_fraction", "target_faces"]),
+        ("VORTX_PT_result", ["min_piece_faces", "min_piece_fraction", "target_faces", "texture_size", "face_budget"]),
         ("VORTX_PT_advanced", ["frustum_depth", "max_room_size", "image_size", "colour_views"]),
     ],
 )
@@ -140,7 +140,7 @@ def test_weights_file_shown_only_when_chosen(blender, empty_scene) -> None:
     [
         ("VORTX_PT_reconstruction", ["vortx.reconstruct"]),
         ("VORTX_PT_tiles", ["vortx.preview_tiles", "vortx.bake_tiles"]),
-        ("VORTX_PT_result", ["vortx.clean_result", "vortx.export_result"]),
+        ("VORTX_PT_result", ["vortx.clean_result", "vortx.export_result", "vortx.bake_texture"]),
     ],
 )
 def test_reconstruction_panels_show_their_operators(blender, empty_scene, panel: str, expected: list[str]) -> None:
@@ -194,3 +194,40 @@ def test_file_import_and_export_menu_entries(blender, empty_scene) -> None:
     blender.ui.menu_export(SimpleNamespace(layout=RecordingLayout(calls)), bpy.context)
     assert [c[1]["operator"] for c in calls if c[0] == "operator"] == ["vortx.import_capture", "vortx.export_result"]
     assert blender.ui.menu_export in getattr(bpy.types.TOPBAR_MT_file_export.draw, "_draw_funcs", [])
+
+
+def test_result_panel_offers_the_bake_with_the_vr_preset_and_its_progress(blender, empty_scene) -> None:
+    import json
+
+    import bpy
+    import numpy as np
+
+    labels = [c[1].get("text") for c in _draw("VORTX_PT_result", bpy.context) if c[0] == "label"]
+    assert " ".join(t for t in labels if t).startswith("VR preset: 100k faces, 4096 px (2048 px for mobile headsets)")
+    assert not any(t and t.startswith("Textured") for t in labels)
+
+    results = blender.vortx_blender.result
+    mesh = blender.engine.mesh_io.Mesh(vertices=np.float32([[0, 0, 0], [1, 0, 0], [0, 1, 0]]), faces=np.int32([[0, 1, 2]]))
+    obj = results.insert_result(empty_scene, mesh, results.Provenance("/captures/hall", {}, "stereo", {}))
+    obj["vortx_texture"] = json.dumps({"texture_size": 2048, "stats": {"faces": 1}})
+    labels = [c[1].get("text") for c in _draw("VORTX_PT_result", bpy.context) if c[0] == "label"]
+    assert "Textured: 2048 px, 1 faces" in labels
+
+    jobs = blender.vortx_blender.jobs
+    release, reported = threading.Event(), threading.Event()
+
+    def work(progress, cancel):
+        progress("texture: bake", 3, 6)
+        reported.set()
+        release.wait(10)
+
+    job = jobs.Job("Bake Texture", work).start()
+    try:
+        reported.wait(5)
+        job.poll()
+        (progress,) = [c[1] for c in _draw("VORTX_PT_result", bpy.context) if c[0] == "progress"]
+        assert progress["factor"] == pytest.approx(0.5) and "texture: bake 3/6" in progress["text"]
+        assert not [c for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "progress"]
+    finally:
+        release.set()
+        job.wait()

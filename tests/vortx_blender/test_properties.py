@@ -70,6 +70,8 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
         "stereo_sources": 6,
         "stereo_min_ncc": 0.4,
         "stereo_consistency": 1,
+        "texture_size": 2048,
+        "face_budget": 50000,
     }
     settings = empty_scene.vortx
     for name, value in values.items():

@@ -1,10 +1,7 @@
 """Bake Texture in Blender (vortx_blender/texture.py through vortx.bake_texture, headless and blocking):
 a VoRTX result gets the engine's textured mesh, a UV map, a packed image and a texture material;
 Show Observation still switches colours; a cancelled or failing bake leaves the scene as it was.
-
-The scene: the engine's synthetic box room (6 photos of 96 x 72) with its cameras as Import Capture
-makes them, and a hand-made result mesh: the room's walls, floor and ceiling as a 6 x 6 grid each,
-with colours and the confidence layer. Baked at 512 texels with a 200-face budget (under a second).
+The scene is tests/fixtures_texture.py's box room with a hand-made result mesh.
 """
 
 from __future__ import annotations
@@ -18,64 +15,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from engine.observation import COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE
-
-ROOM = (3.0, 3.0, 2.5)
-SMALL = {"texture_size": 512, "face_budget": 200}
+from engine.observation import OBSERVATIONS
+from fixtures_texture import image_rows_top_first, make_box_capture, textured_scene
 
 
 @pytest.fixture(scope="module")
 def capture_dir(blender, tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("texture") / "box_room"
-    synthetic = importlib.import_module(f"{blender.__name__}.engine.recon.synthetic")
-    synthetic.make_synthetic_capture(path, room_size=ROOM, frames=6, image_size=(96, 72))
-    return path
-
-
-def room_mesh(blender, n: int = 6, evidence: bool = True):
-    """The room box's six sides, each an n x n grid of triangle pairs; colours vary with height, the
-    confidence layer with x (seen well on the x > 1.5 half)."""
-    Mesh = blender.engine.mesh_io.Mesh
-    vertices, faces = [], []
-    sides = [((0, 0, 0), (ROOM[0], 0, 0), (0, ROOM[1], 0)), ((0, 0, ROOM[2]), (0, ROOM[1], 0), (ROOM[0], 0, 0)),
-             ((0, 0, 0), (0, 0, ROOM[2]), (ROOM[0], 0, 0)), ((0, ROOM[1], 0), (ROOM[0], 0, 0), (0, 0, ROOM[2])),
-             ((0, 0, 0), (0, ROOM[1], 0), (0, 0, ROOM[2])), ((ROOM[0], 0, 0), (0, 0, ROOM[2]), (0, ROOM[1], 0))]
-    for origin, u, v in sides:
-        base = len(vertices)
-        for j in range(n + 1):
-            for i in range(n + 1):
-                vertices.append(np.add(origin, np.multiply(u, i / n) + np.multiply(v, j / n)))
-        for j in range(n):
-            for i in range(n):
-                a = base + j * (n + 1) + i
-                faces += [[a, a + 1, a + n + 2], [a, a + n + 2, a + n + 1]]
-    vertices = np.asarray(vertices, np.float32)
-    colors = np.stack([vertices[:, 2] / ROOM[2], np.full(len(vertices), 0.4), 1 - vertices[:, 2] / ROOM[2]], 1)
-    attributes = {}
-    if evidence:
-        good = vertices[:, 0] > 1.5
-        attributes = {OBSERVATIONS: np.where(good, 8.0, 1.0).astype(np.float32),
-                      STEREO_CONFIDENCE: np.where(good, 0.9, 0.4).astype(np.float32),
-                      COMPLETED: np.zeros(len(vertices), np.float32)}
-    return Mesh(vertices=vertices, faces=np.asarray(faces, np.int32), colors=colors.astype(np.float32),
-                attributes=attributes)
-
-
-def textured_scene(blender, capture_dir: Path, evidence: bool = True, **settings):
-    """A fresh scene: the capture cameras, the result `box_room`, the small bake settings."""
-    import bpy
-
-    bpy.ops.wm.read_homefile(use_empty=True)
-    scene = bpy.context.scene
-    capture = blender.engine.capture.load_capture(capture_dir)
-    blender.vortx_blender.capture.apply_capture(scene, capture, capture_dir)
-    results = blender.vortx_blender.result
-    provenance = results.Provenance(str(capture_dir), {"voxel_size": 0.04}, "stereo", {})
-    obj = results.insert_result(scene, room_mesh(blender, evidence=evidence), provenance)
-    for name, value in {**SMALL, **settings}.items():
-        setattr(scene.vortx, name, value)
-    bpy.context.view_layer.update()
-    return scene, obj
+    return make_box_capture(blender, tmp_path_factory.mktemp("texture") / "box_room")
 
 
 @pytest.fixture
@@ -112,14 +58,6 @@ def positions(mesh) -> np.ndarray:
     values = np.empty(3 * len(mesh.vertices), np.float32)
     mesh.attributes["position"].data.foreach_get("vector", values)
     return values.reshape(-1, 3)
-
-
-def image_rows_top_first(image) -> np.ndarray:
-    """(h, w, 3) uint8 of a Blender image, row 0 at the top (as the engine and PNG store it)."""
-    width, height = image.size
-    pixels = np.empty(width * height * 4, np.float32)
-    image.pixels.foreach_get(pixels)
-    return np.round(pixels.reshape(height, width, 4)[::-1, :, :3] * 255).astype(np.uint8)
 
 
 def base_colour_source(material) -> str:

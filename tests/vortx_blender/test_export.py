@@ -1,0 +1,144 @@
+"""Exporting a baked (textured) result: GLB/glTF carry the UVs and the photo texture and no vertex
+colours, OBJ a .mtl and the texture beside it; an untextured result exports its vertex colours as
+before. Files are read back with an own GLB/OBJ parser and with Blender's glTF importer."""
+
+from __future__ import annotations
+
+import json
+import struct
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial import cKDTree
+
+from fixtures_texture import image_rows_top_first, make_box_capture, textured_scene
+
+
+@pytest.fixture(scope="module")
+def capture_dir(blender, tmp_path_factory) -> Path:
+    return make_box_capture(blender, tmp_path_factory.mktemp("export") / "box_room")
+
+
+@pytest.fixture
+def baked(blender, capture_dir):
+    """A scene with the baked box room; -> (scene, object, the engine's texture (H, W, 3) top row first)."""
+    import bpy
+
+    scene, obj = textured_scene(blender, capture_dir)
+    assert bpy.ops.vortx.bake_texture() == {"FINISHED"}
+    image = blender.vortx_blender.result.texture_image_of(obj.active_material)
+    return scene, obj, image_rows_top_first(image)
+
+
+def read_glb(path: Path) -> tuple[dict, bytes]:
+    """(the glTF JSON, the binary chunk) of a .glb file (glTF 2.0 section 4.4)."""
+    data = path.read_bytes()
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    assert magic == b"glTF" and version == 2 and length == len(data)
+    json_length, json_type = struct.unpack_from("<I4s", data, 12)
+    assert json_type == b"JSON"
+    document = json.loads(data[20:20 + json_length])
+    offset = 20 + json_length
+    bin_length, bin_type = struct.unpack_from("<I4s", data, offset)
+    assert bin_type == b"BIN\x00"
+    return document, data[offset + 8:offset + 8 + bin_length]
+
+
+def decode_png(data: bytes) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of PNG bytes."""
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def test_glb_of_a_textured_result_has_uvs_and_the_photo_texture(blender, baked, tmp_path) -> None:
+    scene, obj, texture = baked
+    path = blender.vortx_blender.export.export_result(obj, tmp_path / "room.glb", scene.view_layers[0])
+    document, binary = read_glb(path)
+    (primitive,) = document["meshes"][0]["primitives"]
+    assert "TEXCOORD_0" in primitive["attributes"]
+    assert not any(name.startswith("COLOR_") for name in primitive["attributes"])  # would tint the texture
+    (material,) = document["materials"]
+    pbr = material["pbrMetallicRoughness"]
+    assert pbr.get("metallicFactor", 1.0) == 0.0 and pbr.get("roughnessFactor", 1.0) == 1.0
+    texture_index = pbr["baseColorTexture"]["index"]
+    image = document["images"][document["textures"][texture_index]["source"]]
+    assert image["mimeType"] == "image/png"
+    view = document["bufferViews"][image["bufferView"]]
+    png = binary[view.get("byteOffset", 0):view.get("byteOffset", 0) + view["byteLength"]]
+    np.testing.assert_array_equal(decode_png(png), texture)  # the bake's bytes, lossless
+    # glTF counts v from the top: the exported UVs are Blender's with v flipped, as many as the corners.
+    accessor = document["accessors"][primitive["attributes"]["TEXCOORD_0"]]
+    assert accessor["type"] == "VEC2" and accessor["componentType"] == 5126  # float
+    view = document["bufferViews"][accessor["bufferView"]]
+    start = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+    exported = np.frombuffer(binary, np.float32, 2 * accessor["count"], start).reshape(-1, 2)
+    blender_uvs = np.empty(2 * len(obj.data.loops), np.float32)
+    obj.data.uv_layers["UVMap"].data.foreach_get("uv", blender_uvs)
+    flipped = blender_uvs.reshape(-1, 2) * np.float32([1, -1]) + np.float32([0, 1])
+    for ours, theirs in ((exported, flipped), (flipped, exported)):  # the same UVs (the exporter dedups corners)
+        assert cKDTree(theirs).query(ours)[0].max() < 1e-6
+
+
+def test_glb_imports_back_into_blender_with_its_texture(blender, baked, tmp_path) -> None:
+    import bpy
+
+    scene, obj, texture = baked
+    faces = len(obj.data.polygons)
+    lowest, highest = (np.array([min(v.co[i] for v in obj.data.vertices) for i in range(3)]),
+                       np.array([max(v.co[i] for v in obj.data.vertices) for i in range(3)]))
+    path = blender.vortx_blender.export.export_result(obj, tmp_path / "room.glb", scene.view_layers[0])
+
+    bpy.ops.wm.read_homefile(use_empty=True)
+    assert bpy.ops.import_scene.gltf(filepath=str(path)) == {"FINISHED"}
+    (imported,) = [o for o in bpy.context.scene.objects if o.type == "MESH"]
+    mesh = imported.data
+    assert len(mesh.polygons) == faces and len(mesh.uv_layers) == 1
+    assert len(mesh.color_attributes) == 0
+    (node,) = [n for n in imported.active_material.node_tree.nodes if n.type == "TEX_IMAGE"]
+    assert tuple(node.image.size) == (512, 512)
+    np.testing.assert_array_equal(image_rows_top_first(node.image), texture)
+    # The same room in the same place (glTF's Y up converted back to Z up).
+    coords = np.array([imported.matrix_world @ v.co for v in mesh.vertices])
+    np.testing.assert_allclose(coords.min(0), lowest, atol=1e-5)
+    np.testing.assert_allclose(coords.max(0), highest, atol=1e-5)
+    uvs = np.empty(2 * len(mesh.loops), np.float32)
+    mesh.uv_layers[0].data.foreach_get("uv", uvs)
+    assert uvs.min() >= 0.0 and uvs.max() <= 1.0 and np.ptp(uvs) > 0.5
+
+
+def test_obj_of_a_textured_result_writes_mtl_and_texture(blender, baked, tmp_path) -> None:
+    scene, obj, texture = baked
+    image = blender.vortx_blender.result.texture_image_of(obj.active_material)
+    filepath = image.filepath_raw
+    path = blender.vortx_blender.export.export_result(obj, tmp_path / "out" / "room.obj", scene.view_layers[0])
+    assert image.filepath_raw == filepath and image.packed_file is not None  # the .blend keeps its own texture
+    lines = path.read_text().splitlines()
+    assert sum(line.startswith("vt ") for line in lines) > 0
+    assert sum(line.startswith("f ") for line in lines) == len(obj.data.polygons)
+    (mtllib,) = [line.split(maxsplit=1)[1] for line in lines if line.startswith("mtllib ")]
+    mtl = (path.parent / mtllib).read_text().splitlines()
+    (map_kd,) = [line.split(maxsplit=1)[1] for line in mtl if line.startswith("map_Kd")]
+    picture = path.parent / map_kd.strip().strip('"')
+    assert picture.name == "room_texture.png" and picture.is_file()
+    np.testing.assert_array_equal(decode_png(picture.read_bytes()), texture)
+
+
+def test_untextured_result_exports_vertex_colours_as_before(blender, capture_dir, tmp_path) -> None:
+    scene, obj = textured_scene(blender, capture_dir)  # not baked
+    assert not blender.vortx_blender.result.is_textured(obj)
+    document, _ = read_glb(blender.vortx_blender.export.export_result(obj, tmp_path / "room.glb", scene.view_layers[0]))
+    attributes = document["meshes"][0]["primitives"][0]["attributes"]
+    assert "COLOR_0" in attributes and "TEXCOORD_0" not in attributes and "images" not in document
+    obj_path = blender.vortx_blender.export.export_result(obj, tmp_path / "room.obj", scene.view_layers[0])
+    assert not any(line.startswith(("vt ", "mtllib")) for line in obj_path.read_text().splitlines())
+
+
+def test_export_while_showing_observation_writes_the_texture(blender, baked, tmp_path) -> None:
+    results = blender.vortx_blender.result
+    scene, obj, texture = baked
+    obj.vortx_show_observation = True
+    document, _ = read_glb(blender.vortx_blender.export.export_result(obj, tmp_path / "room.glb", scene.view_layers[0]))
+    assert "baseColorTexture" in document["materials"][0]["pbrMetallicRoughness"]
+    principled = next(n for n in obj.active_material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
+    assert principled.inputs["Base Color"].links[0].from_node.name == results.TEXTURE_OBSERVATION_NODE  # shown again
