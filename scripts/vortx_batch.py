@@ -6,9 +6,11 @@
     .venv/bin/python scripts/vortx_batch.py FOLDER_OF_CAPTURES --out OUT_FOLDER
 
 Runs the extension's own operators, exactly as a user would click them: Import Capture, Estimate
-Poses (only when no frame has a pose), Refine Poses (with --refine-poses), Reconstruct; then saves
-the .blend and, with --export, writes the mesh as GLB, PLY or OBJ (metres, Z up for PLY/OBJ; glTF is
-Y-up by specification and converts back on import). Uses the `vortx` extension this Blender has
+Poses (only when no frame has a pose), Refine Poses (with --refine-poses), Reconstruct, Bake Texture
+(with --vr: the VR preset, a mesh decimated to --face-budget with a --texture-size photo texture);
+then saves the .blend and, with --export, writes the mesh as GLB, PLY or OBJ (metres, Z up for
+PLY/OBJ; glTF is Y-up by specification and converts back on import; with --vr, GLB/glTF and OBJ carry
+the texture). Uses the `vortx` extension this Blender has
 installed; otherwise this checkout is mounted as a temporary local extension repository
 (scripts/_extension_dev.py, as the tests do).
 
@@ -20,7 +22,8 @@ suffix counts), NAME.glb there. A failed capture does not stop the others.
 The report (JSON, one per capture, also for a failed one) says: the capture and its format, frames
 loaded / posed / used and the photos skipped with the warning giving the reasons, where the poses
 came from (given, refined, structure from motion) and the scale (source and how it was found),
-seconds per step, mesh size, every warning, and the error with the step it happened in.
+seconds per step, mesh size, the texture bake's numbers (with --vr), every warning, and the error with
+the step it happened in.
 
 Prints one line per finished stage; on failure prints `error: <reason>` and exits with status 1
 (after finishing the other captures; 2 for bad arguments), also under `blender --background`
@@ -89,6 +92,9 @@ def parse_arguments(args: Sequence[str]) -> argparse.Namespace:
     parser.add_argument("--skip-poses", action="store_true", help="never run structure from motion; fail if no frame has a pose")
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's given poses against the photos (Blender's Refine Poses) before reconstructing")
+    parser.add_argument("--vr", action="store_true",
+                        help="the VR preset: after Reconstruct, Bake Texture (decimated to --face-budget faces, a "
+                             "--texture-size texture from the photos); --export .glb or .obj then carries the texture")
     args = parser.parse_args(list(args))
     args.single = args.out.suffix.lower() == ".blend"
     if args.single and len(args.captures) > 1:
@@ -133,6 +139,7 @@ class CaptureReport:
     frames: dict[str, Any] = field(default_factory=dict)  # loaded, posed, used, skipped (names), skip_reasons
     poses: dict[str, Any] = field(default_factory=dict)  # source, status, refined, scale_source, scale_description
     mesh: dict[str, Any] = field(default_factory=dict)  # vertices, faces, blend_bytes, export_bytes
+    texture: dict[str, Any] = field(default_factory=dict)  # with --vr: the bake's settings and stats (vortx_texture)
     timings_s: dict[str, float] = field(default_factory=dict)  # per step, and total
     warnings: list[str] = field(default_factory=list)
     settings: dict[str, Any] = field(default_factory=dict)
@@ -306,7 +313,8 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
     .blend into place; fills `report` on the way. Raises BatchError (or anything else) on failure."""
     import bpy
 
-    steps = 4 + (job.export is not None)
+    steps = 4 + (job.export is not None) + bool(args.vr)
+    number = iter(range(1, steps + 1))  # the printed step numbers, in order
     step = Step(report)
     warnings: list[str] = []
     bpy.ops.wm.read_homefile(use_empty=True)  # no default cube/camera/light in the result
@@ -329,7 +337,7 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
         report.frames = {"loaded": settings.frame_count, "posed": settings.posed_frame_count, "used": 0,
                          "skipped": skipped,
                          "skip_reasons": [w for w in capture_warnings if any(name in w for name in skipped)]}
-    say(1, steps, "import capture", f"{settings.frame_count} frames ({settings.capture_format}), "
+    say(next(number), steps, "import capture", f"{settings.frame_count} frames ({settings.capture_format}), "
         f"{settings.posed_frame_count} posed, {settings.resolution_x}x{settings.resolution_y}", started)
 
     started = time.perf_counter()
@@ -358,7 +366,7 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
                             "scale_source": settings.scale_source, "scale_description": settings.scale_description,
                             "metric": bool(settings.poses_metric)}
         report.frames["posed"] = settings.posed_frame_count
-    say(2, steps, "poses", detail, started)
+    say(next(number), steps, "poses", detail, started)
 
     started = time.perf_counter()
     with step("reconstruct"):
@@ -374,8 +382,26 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
         report.frames["used"] = settings.posed_frame_count  # the reconstruction reads every posed frame
         report.mesh = {"name": mesh_object.name, "vertices": len(mesh_object.data.vertices),
                        "faces": len(mesh_object.data.polygons)}
-    say(3, steps, "reconstruct", f"'{mesh_object.name}': {len(mesh_object.data.vertices)} vertices, "
+    say(next(number), steps, "reconstruct", f"'{mesh_object.name}': {len(mesh_object.data.vertices)} vertices, "
         f"{len(mesh_object.data.polygons)} faces", started)
+
+    if args.vr:
+        started = time.perf_counter()
+        with step("texture"):
+            try:
+                run_operator("Bake Texture", bpy.ops.vortx.bake_texture, warnings)
+            finally:
+                report.warn(warnings)
+            baked = addon.vortx_blender.texture.bake_summary(mesh_object)
+            if baked is None:
+                raise BatchError(f"Bake Texture finished but '{mesh_object.name}' has no texture")
+            report.texture = baked
+            report.mesh.update(vertices=len(mesh_object.data.vertices), faces=len(mesh_object.data.polygons))
+            if job.export is not None and job.export.suffix.lower() == ".ply":
+                report.warn([f"{job.export.name}: PLY files hold no texture, so the vertex colours are written; "
+                             "export .glb or .obj for the textured mesh"])
+        say(next(number), steps, "texture", f"{baked['texture_size']} px, {len(mesh_object.data.polygons)} faces "
+            f"(face budget {baked['face_budget']})", started)
 
     out = job.blend.resolve()
     # Saved under a temporary name and renamed only once everything else succeeded: a failed or
@@ -387,7 +413,7 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
             out.parent.mkdir(parents=True, exist_ok=True)
             if "FINISHED" not in bpy.ops.wm.save_as_mainfile(filepath=str(partial), copy=True):
                 raise BatchError(f"could not save {out}")
-        say(4, steps, "save", str(out), started)
+        say(next(number), steps, "save", str(out), started)
 
         if job.export is not None:
             started = time.perf_counter()
@@ -398,7 +424,7 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
                     raise BatchError(str(error)) from None
                 report.export = str(written)
                 report.mesh["export_bytes"] = Path(written).stat().st_size
-            say(5, steps, "export", str(written), started)
+            say(next(number), steps, "export", str(written), started)
         os.replace(partial, out)
     finally:
         partial.unlink(missing_ok=True)

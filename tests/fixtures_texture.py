@@ -1,5 +1,6 @@
 """Helpers for the Bake Texture tests (tests/vortx_blender, tests/operators, tests/scripts): the
-engine's synthetic box room as a capture, a hand-made result mesh of that room, a scene holding both.
+engine's synthetic box room as a capture, a hand-made result mesh of that room, a scene holding both,
+and readers for what a textured export holds (GLB chunks, PNG bytes, a Blender image's rows).
 
 The scene: the box room's cameras as Import Capture makes them, and a result mesh of the room's walls,
 floor and ceiling (a 6 x 6 grid each) with colours and the confidence layer; baked at 512 texels with
@@ -9,8 +10,11 @@ a 200-face budget (under a second).
 from __future__ import annotations
 
 import importlib
+import json
+import struct
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from engine.observation import COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE
@@ -78,3 +82,32 @@ def image_rows_top_first(image) -> np.ndarray:
     pixels = np.empty(width * height * 4, np.float32)
     image.pixels.foreach_get(pixels)
     return np.round(pixels.reshape(height, width, 4)[::-1, :, :3] * 255).astype(np.uint8)
+
+
+def read_glb(path: Path) -> tuple[dict, bytes]:
+    """(the glTF JSON, the binary chunk) of a .glb file (glTF 2.0 section 4.4)."""
+    data = path.read_bytes()
+    magic, version, length = struct.unpack_from("<4sII", data, 0)
+    assert magic == b"glTF" and version == 2 and length == len(data)
+    json_length, json_type = struct.unpack_from("<I4s", data, 12)
+    assert json_type == b"JSON"
+    document = json.loads(data[20:20 + json_length])
+    offset = 20 + json_length
+    bin_length, bin_type = struct.unpack_from("<I4s", data, offset)
+    assert bin_type == b"BIN\x00"
+    return document, data[offset + 8:offset + 8 + bin_length]
+
+
+def decode_png(data: bytes) -> np.ndarray:
+    """(H, W, 3) uint8 RGB of PNG bytes."""
+    return cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+
+
+def glb_base_colour_png(document: dict, binary: bytes) -> bytes:
+    """The PNG bytes of the first material's base colour texture in a GLB (embedded in the binary chunk)."""
+    pbr = document["materials"][0]["pbrMetallicRoughness"]
+    image = document["images"][document["textures"][pbr["baseColorTexture"]["index"]]["source"]]
+    assert image["mimeType"] == "image/png"
+    view = document["bufferViews"][image["bufferView"]]
+    start = view.get("byteOffset", 0)
+    return binary[start:start + view["byteLength"]]

@@ -4,16 +4,14 @@ before. Files are read back with an own GLB/OBJ parser and with Blender's glTF i
 
 from __future__ import annotations
 
-import json
-import struct
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from fixtures_texture import image_rows_top_first, make_box_capture, textured_scene
+from fixtures_texture import (decode_png, glb_base_colour_png, image_rows_top_first, make_box_capture, read_glb,
+                              textured_scene)
 
 
 @pytest.fixture(scope="module")
@@ -32,25 +30,6 @@ def baked(blender, capture_dir):
     return scene, obj, image_rows_top_first(image)
 
 
-def read_glb(path: Path) -> tuple[dict, bytes]:
-    """(the glTF JSON, the binary chunk) of a .glb file (glTF 2.0 section 4.4)."""
-    data = path.read_bytes()
-    magic, version, length = struct.unpack_from("<4sII", data, 0)
-    assert magic == b"glTF" and version == 2 and length == len(data)
-    json_length, json_type = struct.unpack_from("<I4s", data, 12)
-    assert json_type == b"JSON"
-    document = json.loads(data[20:20 + json_length])
-    offset = 20 + json_length
-    bin_length, bin_type = struct.unpack_from("<I4s", data, offset)
-    assert bin_type == b"BIN\x00"
-    return document, data[offset + 8:offset + 8 + bin_length]
-
-
-def decode_png(data: bytes) -> np.ndarray:
-    """(H, W, 3) uint8 RGB of PNG bytes."""
-    return cv2.cvtColor(cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
-
-
 def test_glb_of_a_textured_result_has_uvs_and_the_photo_texture(blender, baked, tmp_path) -> None:
     scene, obj, texture = baked
     path = blender.vortx_blender.export.export_result(obj, tmp_path / "room.glb", scene.view_layers[0])
@@ -61,12 +40,7 @@ def test_glb_of_a_textured_result_has_uvs_and_the_photo_texture(blender, baked, 
     (material,) = document["materials"]
     pbr = material["pbrMetallicRoughness"]
     assert pbr.get("metallicFactor", 1.0) == 0.0 and pbr.get("roughnessFactor", 1.0) == 1.0
-    texture_index = pbr["baseColorTexture"]["index"]
-    image = document["images"][document["textures"][texture_index]["source"]]
-    assert image["mimeType"] == "image/png"
-    view = document["bufferViews"][image["bufferView"]]
-    png = binary[view.get("byteOffset", 0):view.get("byteOffset", 0) + view["byteLength"]]
-    np.testing.assert_array_equal(decode_png(png), texture)  # the bake's bytes, lossless
+    np.testing.assert_array_equal(decode_png(glb_base_colour_png(document, binary)), texture)  # lossless PNG
     # glTF counts v from the top: the exported UVs are Blender's with v flipped, as many as the corners.
     accessor = document["accessors"][primitive["attributes"]["TEXCOORD_0"]]
     assert accessor["type"] == "VEC2" and accessor["componentType"] == 5126  # float
