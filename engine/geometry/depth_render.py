@@ -1,11 +1,15 @@
 """Depth maps of a triangle mesh seen from a posed camera (a numpy z-buffer, no GPU, no Blender).
 
 Used by vertex colouring (occlusion), the depth metrics of `engine.eval`, the held-out evaluation
-picture and the capture-view picture script; `shade` turns a depth map into a grey picture. Pixel convention: pixel (row i, column j) covers
-u in [j, j + 1), v in [i, i + 1) (engine/geometry/cameras.py).
+picture and the capture-view picture script; `shade` turns a depth map into a grey picture. The
+point samples (`lattice_samples`) are shared with the colour renders of `engine.eval.view_render`.
+Pixel convention: pixel (row i, column j) covers u in [j, j + 1), v in [i, i + 1) (engine/geometry/cameras.py).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterator
 
 import numpy as np
 
@@ -16,30 +20,51 @@ MAX_EDGE_SAMPLES = 64  # caps the samples of a huge (very close) triangle to 65 
 SAMPLES_PER_CALL = 4_000_000  # bounds the (triangles, samples, 3) buffer to ~100 MB
 
 
-def render_depth(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, pose: np.ndarray, size: tuple[int, int]) -> np.ndarray:
-    """Planar depth (h, w) float32 of the mesh seen from one camera; inf where nothing is hit.
+@dataclass
+class LatticeChunk:
+    """Samples of some triangles on their barycentric lattices, in one camera.
+
+    faces (t,) int64: the triangles (indices into the mesh's faces); samples: lattice points per
+    triangle (S), sample k of triangle i being row i * S + k below; points (t * S, 3) float64 camera
+    coordinates; flat (t * S,) int64 pixel index row * w + col; inside (t * S,) bool: on the image.
+    """
+
+    faces: np.ndarray
+    samples: int
+    points: np.ndarray
+    flat: np.ndarray
+    inside: np.ndarray
+
+
+def lattice_samples(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, pose: np.ndarray, size: tuple[int, int],
+                    max_edge_samples: int = MAX_EDGE_SAMPLES) -> Iterator[LatticeChunk]:
+    """The point samples a z-buffer of the mesh is built from, a chunk at a time (the one home of the
+    sampling `render_depth` and `engine.eval.view_render.render_surface` share).
 
     vertices (V, 3) world; faces (F, 3); K (3, 3); pose (4, 4) camera-to-world; size = (w, h).
     Each triangle is sampled on a barycentric lattice fine enough that neighbouring samples are at
-    most half a pixel apart, so it covers every pixel it overlaps; samples are exact points of the
-    3D triangle, so depths are perspective-correct. Triangles crossing the near plane are skipped.
+    most half a pixel apart (at most `max_edge_samples` steps per edge), so it covers every pixel it
+    overlaps; samples are exact points of the 3D triangle, so depths are perspective-correct.
+    Triangles crossing the near plane are skipped, and so are triangles wholly off the image.
     """
     w, h = size
-    depth = np.full(h * w, np.inf, dtype=np.float64)
+    faces = np.asarray(faces)
     cam = world_to_camera(vertices, pose)
     in_front = cam[:, 2] > NEAR_PLANE
-    tris = faces[in_front[faces].all(axis=1)]
-    if len(tris) == 0:
-        return depth.reshape(h, w).astype(np.float32)
+    face_ids = np.flatnonzero(in_front[faces].all(axis=1))
+    if len(face_ids) == 0:
+        return
+    tris = faces[face_ids]
     # Vertices behind the camera get a dummy depth of 1; only triangles fully in front are used.
     u, v = camera_to_pixels(np.where(in_front[:, None], cam, [0.0, 0.0, 1.0]), K)
     tu, tv = u[tris], v[tris]  # (T, 3)
     on_screen = (tu.max(1) >= 0) & (tu.min(1) < w) & (tv.max(1) >= 0) & (tv.min(1) < h)
-    tris, tu, tv = tris[on_screen], tu[on_screen], tv[on_screen]
+    tris, tu, tv, face_ids = tris[on_screen], tu[on_screen], tv[on_screen], face_ids[on_screen]
     edge = np.max(np.hypot(tu - np.roll(tu, 1, axis=1), tv - np.roll(tv, 1, axis=1)), axis=1)
-    steps = np.clip(np.ceil(2.0 * edge), 1, MAX_EDGE_SAMPLES).astype(np.int64)
+    steps = np.clip(np.ceil(2.0 * edge), 1, max_edge_samples).astype(np.int64)
     for n in np.unique(steps):
-        group = tris[steps == n]
+        chosen = steps == n
+        group, group_ids = tris[chosen], face_ids[chosen]
         i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
         keep = i + j <= n
         w1, w2 = i[keep] / n, j[keep] / n
@@ -53,7 +78,20 @@ def render_depth(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, pose: n
             pu, pv = camera_to_pixels(points, K)
             col, row = np.floor(pu).astype(np.int64), np.floor(pv).astype(np.int64)
             inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-            np.minimum.at(depth, row[inside] * w + col[inside], points[inside, 2])
+            yield LatticeChunk(group_ids[a:a + per_call], len(bary), points, row * w + col, inside)
+
+
+def render_depth(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, pose: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """Planar depth (h, w) float32 of the mesh seen from one camera; inf where nothing is hit.
+
+    vertices (V, 3) world; faces (F, 3); K (3, 3); pose (4, 4) camera-to-world; size = (w, h).
+    Each pixel holds the nearest of the `lattice_samples` that fall in it (triangles crossing the
+    near plane are skipped; huge triangles are sampled at most MAX_EDGE_SAMPLES steps per edge).
+    """
+    w, h = size
+    depth = np.full(h * w, np.inf, dtype=np.float64)
+    for chunk in lattice_samples(vertices, faces, K, pose, size):
+        np.minimum.at(depth, chunk.flat[chunk.inside], chunk.points[chunk.inside, 2])
     return depth.reshape(h, w).astype(np.float32)
 
 
