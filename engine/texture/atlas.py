@@ -3,6 +3,12 @@
 xatlas cuts the surface into charts of low distortion, flattens each and packs them into one square;
 vertices on a cut are split, so the atlas mesh has more vertices than its source and records which
 source vertex each one copies.
+
+Marching-cubes surfaces of real photos are rough at the voxel scale, and xatlas ends a chart where the
+normals turn, so a room came out as ~13,000 charts of ~9 faces (120k-face demo room). The charts are
+therefore cut on a smoothed copy of the surface (SMOOTHING_ITERATIONS of Laplacian smoothing, the same
+vertices and faces): 4,350 charts for the demo room, each a larger piece of wall. The UVs then belong
+to the real vertices; the stretch this adds is that of voxel-scale bumps, a few percent.
 """
 
 from __future__ import annotations
@@ -12,6 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import VortxError
+
+SMOOTHING_ITERATIONS = 10  # measured on the demo room: 10 -> 4,350 charts, 30 -> 4,172 (no better)
 
 
 @dataclass
@@ -31,15 +39,15 @@ def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None
              padding: int) -> Atlas:
     """Charts and packing for a `texture_size` square with `padding` texels between charts.
 
-    vertices (V, 3); faces (F, 3); normals (V, 3) or None (they guide the chart cuts).
+    vertices (V, 3); faces (F, 3); normals (V, 3) or None (unused: charts follow the smoothed surface).
     """
     import xatlas
 
     if len(faces) == 0:
         raise VortxError("the mesh has no faces, so there is nothing to texture")
     atlas = xatlas.Atlas()
-    atlas.add_mesh(np.ascontiguousarray(vertices, np.float32), np.ascontiguousarray(faces, np.uint32),
-                   None if normals is None else np.ascontiguousarray(normals, np.float32))
+    smoothed = smooth_positions(np.asarray(vertices, np.float64), np.asarray(faces, np.int64), SMOOTHING_ITERATIONS)
+    atlas.add_mesh(smoothed.astype(np.float32), np.ascontiguousarray(faces, np.uint32))
     pack = xatlas.PackOptions()
     pack.resolution = int(texture_size)
     pack.padding = int(padding)
@@ -56,3 +64,21 @@ def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None
         charts=int(atlas.chart_count),
         utilisation=float(atlas.utilization),
     )
+
+
+def smooth_positions(vertices: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
+    """(V, 3) float64: each step moves every vertex half-way to the mean of its edge neighbours."""
+    from scipy.sparse import coo_matrix, diags
+
+    n = len(vertices)
+    rows = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2], faces[:, 1], faces[:, 2], faces[:, 0]])
+    cols = np.concatenate([faces[:, 1], faces[:, 2], faces[:, 0], faces[:, 0], faces[:, 1], faces[:, 2]])
+    adjacency = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)).tocsr()
+    adjacency.data[:] = 1.0  # an edge shared by two faces counts once
+    degree = np.asarray(adjacency.sum(axis=1)).ravel()
+    mean_of_neighbours = diags(1.0 / np.maximum(degree, 1.0)) @ adjacency
+    x = vertices.copy()
+    isolated = degree == 0
+    for _ in range(iterations):
+        x = np.where(isolated[:, None], x, 0.5 * x + 0.5 * (mean_of_neighbours @ x))
+    return x

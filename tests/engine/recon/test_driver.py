@@ -36,11 +36,11 @@ def capture_dir(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def cli_runs(capture_dir, tmp_path_factory):
-    """Two CLI runs: PLY with the tiny settings, OBJ with a coarser voxel and fewer views."""
+    """Two CLI runs: PLY with the tiny settings, a textured OBJ with a coarser voxel and fewer views."""
     out = tmp_path_factory.mktemp("out")
     ply, obj = out / "room_a.ply", out / "room_b.obj"
     assert main(["reconstruct", str(capture_dir), "--out", str(ply), *TINY]) == 0
-    other = TINY + ["--voxel-size", "0.2", "--views", "1"]  # argparse: the last value wins
+    other = TINY + ["--voxel-size", "0.2", "--views", "1", "--texture-size", "512"]  # argparse: the last value wins
     assert main(["reconstruct", str(capture_dir), "--out", str(obj), *other]) == 0
     return ply, obj
 
