@@ -17,6 +17,11 @@ The confidence layer (engine/stereo/vertex_evidence.py): the engine's per-vertex
 "Observation" colour attribute shows them red (seen by few photos or weak matches: take more photos
 there) to green (well observed). The object's `vortx_show_observation` toggle switches which colour
 attribute the viewport and the material show; it changes no geometry.
+
+A baked result (vortx_blender/texture.py) has its own material, "VoRTX Texture", whose Image
+Texture node holds the packed photo texture; the toggle relinks that material's base colour between
+the texture and the observation colours instead of swapping the material (which holds the only
+reference to the texture).
 """
 
 from __future__ import annotations
