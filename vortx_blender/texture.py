@@ -76,6 +76,8 @@ def request_from_scene(scene: "bpy.types.Scene", obj: Optional["bpy.types.Object
     if obj is None or obj.type != "MESH" or not obj.get(RESULT_TAG):
         raise VortxError("No VoRTX result to bake: Reconstruct first, or select the result mesh")
     options = recon_settings_from_scene(scene.vortx, with_weights=False).texture_options
+    # The cameras as they are (not re-prepared like Reconstruct's scene_capture, which may move them):
+    # the result mesh shares their world, so the photos project onto it from exactly there.
     capture = posed_capture_from_scene(scene)
     if capture is None or not capture.posed_frames:
         raise PoseError("The scene has no posed capture cameras to bake the photos from: import the capture "
