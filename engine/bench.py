@@ -12,6 +12,10 @@ The classical stereo method (the default) runs on the same captures and regions 
 settings, its stages reported separately (stereo depth, TSDF fusion, mesh, colour, evidence), and is
 checked against the cost budget of issue 11: within 2x the CPU time of VoRTX on the same capture
 (at the most views per tile measured there) and within VoRTX's peak memory + 1 GiB.
+
+The texture bake (VR preset: engine.texture.vr.textured_result) runs on the first stereo mesh with
+all its capture's photos, at each of TEXTURE_SIZES (--quick: the smallest): atlas, texels, bake
+seconds and the bake's own peak RSS.
 """
 
 from __future__ import annotations
@@ -62,6 +66,8 @@ IMAGE_SIZE = (320, 240)
 PROJECTED_ROOM = (10.0, 10.0, 3.0)
 PROJECTED_KEYFRAMES = 500  # a careful walk around a 10 x 10 m room at 0.1 m / 15 deg spacing
 PROJECTED_IMAGE = (640, 480)
+TEXTURE_SIZES = (2048, 4096)
+QUICK_TEXTURE_SIZES = (2048,)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -157,8 +163,9 @@ def stereo_cases(cases: tuple[Case, ...]) -> list[Case]:
     return list(chosen.values())
 
 
-def run_stereo_case(case: Case, device: str, workdir: Path) -> dict[str, Any]:
-    """One run of the classical stereo method (default settings) on `case`'s capture and region."""
+def run_stereo_case(case: Case, device: str, workdir: Path) -> tuple[dict[str, Any], Any]:
+    """One run of the classical stereo method (default settings) on `case`'s capture and region.
+    -> (the run's numbers, its mesh: the texture bake's input)."""
     from .recon import ReconSettings, reconstruct
 
     capture = bench_capture(case, workdir)
@@ -180,7 +187,27 @@ def run_stereo_case(case: Case, device: str, workdir: Path) -> dict[str, Any]:
         "start_rss_bytes": stats["memory"]["start_rss_bytes"],
         "cuda_max_allocated_bytes": stats["memory"]["cuda_max_allocated_bytes"],
         "message": result.message,
-    }
+    }, result.mesh
+
+
+def run_texture_case(case: Case, mesh: Any, texture_size: int, workdir: Path) -> dict[str, Any]:
+    """The VR preset's texture bake of `mesh` (made from `case`'s capture) from all that capture's
+    photos at `texture_size`: the stages' seconds and the bake's peak RSS."""
+    from .recon.memory import PeakMemory
+    from .texture.options import TextureOptions
+    from .texture.views import views_from_capture
+    from .texture.vr import textured_result
+
+    views = views_from_capture(bench_capture(case, workdir))
+    options = TextureOptions(texture_size=texture_size)
+    started_cpu = time.process_time()
+    with PeakMemory() as memory:
+        _, stats = textured_result(mesh, views, options)
+    return {"case": case.name, "texture_size": texture_size, "photos": len(views), "faces_in": stats["vr"]["faces_in"],
+            "faces": stats["faces"], "charts": stats["charts"], "atlas_utilisation": stats["atlas_utilisation"],
+            "texels": stats["texels"], "texels_seen": stats["texels_seen"], "timings_s": stats["timings_s"],
+            "cpu_s": round(time.process_time() - started_cpu, 2), "peak_rss_bytes": memory.peak_rss,
+            "start_rss_bytes": memory.start_rss}
 
 
 def compare_with_vortx(stereo_run: dict[str, Any], vortx_runs: list[dict[str, Any]]) -> dict[str, Any]:
@@ -246,6 +273,19 @@ def markdown(report: dict[str, Any]) -> str:
                 + f" | {t['total']:.1f} ({c['total']:.1f}) | {r['keyframes_per_s']:.2f} | {r['peak_rss_bytes'] / MB:.0f} "
                 f"| {v['cpu_ratio']:.2f}x | {v['extra_peak_rss_bytes'] / MB:+.0f} | {'yes' if v['within_budget'] else 'NO'} |"
             )
+    if report.get("texture_runs"):
+        lines += ["", "Texture bake (VR preset: small pieces dropped, decimated to the face budget, xatlas atlas, "
+                  "every photo at full resolution) of the stereo mesh:", "",
+                  "| case | texture px | photos | faces (in) | charts | texels (seen) | atlas s | texels s | bake s "
+                  "| total s (CPU s) | peak RSS MB (+ over start) |", "|---" * 11 + "|"]
+        for r in report["texture_runs"]:
+            t = r["timings_s"]
+            lines.append(
+                f"| {r['case']} | {r['texture_size']} | {r['photos']} | {r['faces']} ({r['faces_in']}) | {r['charts']} "
+                f"| {r['texels']} ({100 * r['texels_seen'] / max(r['texels'], 1):.0f} %) | {t['atlas']:.1f} | {t['texels']:.1f} "
+                f"| {t['bake']:.1f} | {t['total']:.1f} ({r['cpu_s']:.1f}) | {r['peak_rss_bytes'] / MB:.0f} "
+                f"(+{(r['peak_rss_bytes'] - (r['start_rss_bytes'] or 0)) / MB:.0f}) |"
+            )
     lines += ["", "| sparse vs dense 3^3 conv | voxels | kernel map s | sparse fwd s | dense fwd s | speed-up fwd | speed-up fwd+bwd |",
               "|---|---|---|---|---|---|---|"]
     for s in report["sparse_vs_dense"]:
@@ -276,13 +316,21 @@ def run(args: argparse.Namespace) -> int:
             print(f"running {case.name} ...", file=sys.stderr, flush=True)
             report["runs"].append(run_case(case, args.device, workdir))
             _save_partial(report, args.out)
-        report["stereo_runs"] = []
+        report["stereo_runs"], meshes = [], []
         for case in stereo_cases(cases):
             print(f"running stereo fusion on {case.name} ...", file=sys.stderr, flush=True)
-            run = run_stereo_case(case, args.device, workdir)
+            run, mesh = run_stereo_case(case, args.device, workdir)
             run["versus_vortx"] = compare_with_vortx(run, report["runs"])
             report["stereo_runs"].append(run)
+            meshes.append((case, mesh))
             _save_partial(report, args.out)
+        report["texture_runs"] = []
+        case, mesh = meshes[0]
+        if len(mesh.faces):
+            for size in QUICK_TEXTURE_SIZES if args.quick else TEXTURE_SIZES:
+                print(f"texture bake of the stereo mesh of {case.name} at {size} px ...", file=sys.stderr, flush=True)
+                report["texture_runs"].append(run_texture_case(case, mesh, size, workdir))
+                _save_partial(report, args.out)
     finally:
         shutil.rmtree(workdir, ignore_errors=True)
     report["sparse_vs_dense"] = []

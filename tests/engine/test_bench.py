@@ -78,3 +78,15 @@ def test_report_table_shows_the_stereo_stages():
     table = markdown(report)
     assert "| stereo depth s | TSDF fusion s | mesh s | colour s | evidence s |" in table
     assert "| N=60, 2 m room | 64 | 64 | 30.0 | 1.5 | 0.2 | 2.0 | 0.4 | 40.0 (80.0) | 1.60 | 1500 | 1.74x | +400 | yes |" in table
+
+
+def test_report_table_shows_the_texture_bake():
+    texture = {"case": "N=20, 1.5 m region", "texture_size": 2048, "photos": 24, "faces_in": 30000, "faces": 30000,
+               "charts": 812, "atlas_utilisation": 0.7, "texels": 2_900_000, "texels_seen": 2_030_000,
+               "timings_s": {"atlas": 12.0, "texels": 1.5, "bake": 9.25, "total": 23.0}, "cpu_s": 24.5,
+               "peak_rss_bytes": 900 * 2**20, "start_rss_bytes": 600 * 2**20}
+    report = {"machine": machine_info(), "runs": [], "stereo_runs": [], "texture_runs": [texture], "sparse_vs_dense": [],
+              "projected_memory": {"room_m": [10, 10, 3], "views": 60, "keyframes": 500, "image_size": [640, 480]}}
+    table = markdown(report)
+    assert "| texture px | photos | faces (in) | charts | texels (seen) | atlas s | texels s | bake s |" in table
+    assert "| N=20, 1.5 m region | 2048 | 24 | 30000 (30000) | 812 | 2900000 (70 %) | 12.0 | 1.5 | 9.2 | 23.0 (24.5) | 900 (+300) |" in table
