@@ -19,6 +19,7 @@ from ..vortx_blender import tile_overlay
 from ..vortx_blender.export import FILE_GLOB, FORMATS, export_result
 from ..vortx_blender.job_operator import JobOperatorMixin
 from ..vortx_blender.jobs import JobFunction
+from ..vortx_blender.texture import PROP_TEXTURE
 from ..vortx_blender.reconstruct import (
     CleanupOptions,
     ReconOutcome,
@@ -124,13 +125,23 @@ class VORTX_OT_clean_result(bpy.types.Operator):
 
     @classmethod
     def poll(cls, context: bpy.types.Context) -> bool:
-        if _active_result(context) is None:
+        obj = _active_result(context)
+        if obj is None:
             cls.poll_message_set("Select a VoRTX result mesh")
+            return False
+        if obj.get(PROP_TEXTURE):
+            # Rebuilding the mesh would drop its UVs under the texture; the bake's VR preset already
+            # dropped small pieces and decimated to the face budget.
+            cls.poll_message_set("This result is textured: clean up before Bake Texture (its Face Budget decimates)")
             return False
         return True
 
     def execute(self, context: bpy.types.Context) -> set[str]:
         obj = _active_result(context)
+        if obj.get(PROP_TEXTURE):
+            self.report({"ERROR"}, f"'{obj.name}' is textured, and cleaning it up would drop its UVs: clean up "
+                                   "before Bake Texture, whose Face Budget decimates")
+            return {"CANCELLED"}
         options = CleanupOptions.from_scene(context.scene.vortx)
         before = len(obj.data.polygons)
         try:

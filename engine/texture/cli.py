@@ -57,11 +57,7 @@ def run(args: argparse.Namespace) -> int:
         raise VortxError(f"{args.mesh}: give the mesh as a .ply file (as `python -m engine reconstruct` writes it)")
     settings = ReconSettings(texture_size=args.texture_size, face_budget=args.face_budget, voxel_size=args.voxel_size)
     settings.validate()
-    mesh = read_ply(args.mesh)
-    if mesh.normals is None:
-        from ..recon.mesh import vertex_normals
-
-        mesh.normals = vertex_normals(mesh.vertices, mesh.faces)
+    mesh = read_ply(args.mesh)  # without normals, the bake computes them from the winding
     capture = load_capture(args.capture)
     for warning in capture.warnings:
         print(f"warning: {warning}", file=sys.stderr)

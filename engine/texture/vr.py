@@ -31,6 +31,9 @@ def decimate(mesh: Mesh, face_budget: int) -> Mesh:
     points, faces = fast_simplification.simplify(np.asarray(mesh.vertices, np.float64),
                                                  np.asarray(mesh.faces, np.int32), target_count=int(face_budget))
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    # Edge collapses can leave the same triangle twice (glTF exporters then drop one): keep the first.
+    _, first = np.unique(np.sort(faces, axis=1), axis=0, return_index=True)
+    faces = faces[np.sort(first)]
     points, faces = compact(points, faces)
     vertices = points.astype(np.float32)
     faces = faces.astype(np.int32)

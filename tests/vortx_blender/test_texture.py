@@ -294,3 +294,19 @@ def test_operator_is_registered_with_undo(blender) -> None:
     import bpy
 
     assert bpy.types.VORTX_OT_bake_texture.bl_options == {"REGISTER", "UNDO"}
+
+
+def test_clean_up_is_refused_on_a_textured_result(blender, capture_dir) -> None:
+    """Clean Up rebuilds the mesh without UVs; on a textured result it would leave the texture on
+    nothing, so it is greyed out with the reason, and the mesh stays as baked."""
+    import bpy
+
+    scene, obj = textured_scene(blender, capture_dir)
+    bpy.context.view_layer.objects.active = obj
+    assert bpy.ops.vortx.clean_result.poll()
+    assert bpy.ops.vortx.bake_texture() == {"FINISHED"}
+    faces = len(obj.data.polygons)
+    assert not bpy.ops.vortx.clean_result.poll()
+    with pytest.raises(RuntimeError, match="poll"):
+        bpy.ops.vortx.clean_result()
+    assert len(obj.data.polygons) == faces and obj.data.uv_layers.active is not None

@@ -112,3 +112,11 @@ def test_bake_can_be_cancelled_and_refuses_bad_options(striped_wall):
         bake_texture(mesh, views, OPTIONS, cancel=token)
     with pytest.raises(VortxError, match="texture size must be one of"):
         bake_texture(mesh, views, TextureOptions(texture_size=1000))
+
+
+def test_a_mesh_without_normals_gets_them_from_its_winding(striped_wall):
+    quad, mesh, views = striped_wall
+    bare = type(mesh)(mesh.vertices, mesh.faces, None, mesh.colors)
+    textured, stats = bake_texture(bare, views, OPTIONS)
+    assert stats["texels_seen"] == stats["texels"]
+    np.testing.assert_allclose(textured.normals, mesh.normals[textured.source_vertex], atol=1e-5)

@@ -55,3 +55,8 @@ def test_vr_mesh_drops_specks_before_decimating():
 def test_a_tiny_face_budget_is_refused_with_the_setting_named():
     with pytest.raises(VortxError, match="face budget"):
         TextureOptions(face_budget=10).validate()
+
+
+def test_decimation_leaves_no_triangle_twice():
+    light = decimate(bumpy_sheet(80), 300)
+    assert len(np.unique(np.sort(light.faces, axis=1), axis=0)) == len(light.faces)
