@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": (".train.cli", "train VoRTX from a config file"),
     "eval": (".eval.cli", "evaluate a predicted mesh against ground truth (Atlas metrics)"),
     "eval-weights": (".eval.heldout", "reconstruct held-out rendered rooms with trained weights and score them"),
+    "eval-texture": (".eval.texture_cli", "texture vs vertex colours from held-out photos (PSNR, SSIM)"),
 }
 
 

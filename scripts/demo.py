@@ -83,12 +83,6 @@ def run_texture(capture: Path, mesh: Path, out: Path) -> None:
         raise DemoError(f"texturing {mesh} failed (its error is above)")
 
 
-def held_out_stems(stems: Sequence[str], count: int) -> list[str]:
-    """`count` photos spread evenly over the walk (the middles of `count` equal stretches)."""
-    ordered = sorted(stems)
-    return [ordered[int((2 * k + 1) * len(ordered) / (2 * count))] for k in range(count)]
-
-
 def inverse(sim: Similarity) -> Similarity:
     """x = R^T (y - t) / s: the similarity undoing `sim`."""
     rotation = sim.rotation.T
@@ -98,27 +92,22 @@ def inverse(sim: Similarity) -> Similarity:
 def measure_texture(mesh_path: Path, posed_dir: Path, gt_mesh: Mesh, to_truth: Similarity, picture: Path) -> dict:
     """Step 7: the held-out report on the demo (the estimated frame), its table and picture."""
     from engine.capture import load_capture
-    from engine.eval.texture_views import GROUND_TRUTH, TEXTURE, VERTEX_COLOURS, heldout_texture_report, \
+    from engine.eval.texture_views import heldout_texture_report, report_table, spread_heldout, \
         write_comparison_picture
     from engine.poses.prepare import SFM_NEVER, prepare_capture
 
     # Prepared as `engine texture` and `engine reconstruct` prepare it, so the cameras see the mesh where it is.
     capture = prepare_capture(load_capture(posed_dir), sfm=SFM_NEVER).capture
-    held = held_out_stems([f.image_path.stem for f in capture.posed_frames], HELDOUT_PHOTOS)
+    held = spread_heldout([f.image_path.stem for f in capture.posed_frames], HELDOUT_PHOTOS)
     options = ReconSettings(texture_size=HELDOUT_TEXTURE_SIZE).texture_options
     say(f"held-out views: baking without photos {', '.join(held)} ({options.texture_size} px texture, "
         f"face budget {options.face_budget}) ...")
     report = heldout_texture_report(read_ply(mesh_path), capture, held, options, aligned(gt_mesh, inverse(to_truth)))
     renders = report.pop("renders")
-    methods = (VERTEX_COLOURS, TEXTURE, GROUND_TRUTH)
     say("held-out views: PSNR dB / SSIM against the photo, on the pixels all three cover — vertex colours, "
         "texture, ground-truth mesh textured (all made without that photo):")
-    say(f"  {'photo':<12} {'pixels':>7} " + " ".join(f"{m:>24}" for m in methods))
-    for view in report["views"]:
-        say(f"  {view['photo']:<12} {view['pixels']:>7} "
-            + " ".join(f"{view['psnr'][m]:>14.2f} / {view['ssim'][m]:.3f}" for m in methods))
-    say(f"  {'mean':<12} {'':>7} " + " ".join(f"{report['mean']['psnr'][m]:>14.2f} / {report['mean']['ssim'][m]:.3f}"
-                                             for m in methods))
+    for line in report_table(report):
+        say("  " + line)
     shown = report["views"][len(report["views"]) // 2]["photo"]
     images = renders[shown]
     write_comparison_picture(picture, images.pop("photo"), images)

@@ -204,3 +204,24 @@ def write_comparison_picture(path: Path, photo: np.ndarray, renders: dict[str, n
     path.parent.mkdir(parents=True, exist_ok=True)
     if not cv2.imwrite(str(path), np.concatenate(parts, axis=1)):
         raise VortxError(f"cannot write {path}")
+
+
+def spread_heldout(stems: Sequence[str], count: int) -> list[str]:
+    """`count` photos spread evenly over the walk (the middles of `count` equal stretches of the
+    sorted names), so the held-out views look at different parts of the room."""
+    ordered = sorted(stems)
+    if not 1 <= count < len(ordered):
+        raise VortxError(f"cannot hold out {count} of {len(ordered)} photos: keep at least one to bake from")
+    return [ordered[int((2 * k + 1) * len(ordered) / (2 * count))] for k in range(count)]
+
+
+def report_table(report: dict) -> list[str]:
+    """The report as lines of text: one row per held-out photo, PSNR dB / SSIM per method, then the mean."""
+    methods = list(report["views"][0]["psnr"])
+    lines = [f"{'photo':<14} {'pixels':>7} " + " ".join(f"{m:>24}" for m in methods)]
+    for view in report["views"]:
+        lines.append(f"{view['photo']:<14} {view['pixels']:>7} "
+                     + " ".join(f"{view['psnr'][m]:>14.2f} / {view['ssim'][m]:.3f}" for m in methods))
+    lines.append(f"{'mean':<14} {'':>7} " + " ".join(
+        f"{report['mean']['psnr'][m]:>14.2f} / {report['mean']['ssim'][m]:.3f}" for m in methods))
+    return lines
