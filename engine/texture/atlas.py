@@ -6,9 +6,11 @@ source vertex each one copies.
 
 Marching-cubes surfaces of real photos are rough at the voxel scale, and xatlas ends a chart where the
 normals turn, so a room came out as ~13,000 charts of ~9 faces (120k-face demo room). The charts are
-therefore cut on a smoothed copy of the surface (SMOOTHING_ITERATIONS of Laplacian smoothing, the same
-vertices and faces): 4,350 charts for the demo room, each a larger piece of wall. The UVs then belong
-to the real vertices; the stretch this adds is that of voxel-scale bumps, a few percent.
+therefore cut on a smoothed copy of the surface (Taubin smoothing, which unlike plain Laplacian
+smoothing does not shrink the surface, so a low-poly mesh keeps its shape; same vertices and faces):
+1,900 charts for the demo room (100k faces), each a larger piece of wall. The UVs then belong to the
+real vertices: a voxel-scale crumple gets fewer texels than its (noise) area, the smooth wall under it
+its share.
 
 xatlas's chart search grows faster than the face count (demo room: 14 s at 25k faces, 112 s at 100k),
 so the surface is cut into BLOCK_SIZE cubes first, each given to xatlas as a mesh of its own; it
@@ -24,7 +26,9 @@ import numpy as np
 
 from ..errors import VortxError
 
-SMOOTHING_ITERATIONS = 10  # measured on the demo room: 10 -> 4,350 charts, 30 -> 4,172 (no better)
+SMOOTHING_ITERATIONS = 10  # Taubin steps; demo room at 100k faces: none 3,851 charts, 10 -> 1,923, 30 -> 1,681
+TAUBIN = (0.5, -0.53)  # shrink then inflate by these factors each step (Taubin 1995's usual pair)
+PADDING_MARGIN = 1.5  # xatlas's atlas overshoots the resolution by ~1.15-1.5x on rooms: pad that much more
 BLOCK_SIZE = 1.0  # metres; 0.5 m was no faster (10.8 s vs 14.0 s at 100k faces) and made 15 % more charts
 
 
@@ -32,13 +36,15 @@ BLOCK_SIZE = 1.0  # metres; 0.5 m was no faster (10.8 s vs 14.0 s at 100k faces)
 class Atlas:
     """source_vertex (V', ) int64: the input vertex each atlas vertex copies; faces (F, 3) int32 into the
     atlas vertices, in the input's face order; uvs (V', 2) float32 in [0, 1], v up (OBJ / Blender);
-    charts: how many charts xatlas made; utilisation: the share of the square the charts cover."""
+    charts: how many charts xatlas made; utilisation: the share of xatlas's atlas the charts cover;
+    padding: the texels left between charts in the texture (asked-for padding, less any overshoot)."""
 
     source_vertex: np.ndarray
     faces: np.ndarray
     uvs: np.ndarray
     charts: int
     utilisation: float
+    padding: float
 
 
 def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None, texture_size: int,
@@ -51,21 +57,14 @@ def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None
 
     if len(faces) == 0:
         raise VortxError("the mesh has no faces, so there is nothing to texture")
-    atlas = xatlas.Atlas()
     faces = np.asarray(faces, np.int64)
     smoothed = smooth_positions(np.asarray(vertices, np.float64), faces, SMOOTHING_ITERATIONS).astype(np.float32)
     blocks = face_blocks(np.asarray(vertices, np.float64), faces, BLOCK_SIZE)
-    block_vertices = []
-    for block in blocks:
-        used, local = np.unique(faces[block], return_inverse=True)
-        block_vertices.append(used)
-        atlas.add_mesh(smoothed[used], local.reshape(-1, 3).astype(np.uint32))
-    pack = xatlas.PackOptions()
-    pack.resolution = int(texture_size)
-    pack.padding = int(padding)
-    pack.bilinear = True  # leave room for bilinear filtering at chart borders
-    pack.blockAlign = True
-    atlas.generate(xatlas.ChartOptions(), pack)
+    atlas, block_vertices = _generate(xatlas, smoothed, faces, blocks, texture_size, padding)
+    if atlas is None:  # e.g. every face of zero area: nothing to lay out
+        raise VortxError("no UV atlas could be made: the mesh's faces have no area (collapsed or degenerate mesh)")
+    width, height = int(atlas.width), int(atlas.height)
+    scale = texture_size / max(width, height, texture_size)  # an atlas larger than the texture is shrunk into it
     source_parts, uv_parts = [], []
     atlas_faces = np.empty_like(faces)
     offset = 0
@@ -76,7 +75,9 @@ def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None
         atlas_faces[block] = block_faces.astype(np.int64) + offset
         offset += len(mapping)
     source_vertex = np.concatenate(source_parts)
-    uvs = np.concatenate(uv_parts)
+    # xatlas normalises UVs by its own atlas size (width x height texels): back to atlas texels, then
+    # into the texture with one factor for both axes, so every chart keeps its shape and density.
+    uvs = np.concatenate(uv_parts) * [width, height] * scale / texture_size
     if not np.array_equal(source_vertex[atlas_faces], faces):
         raise VortxError("the UV atlas changed the mesh's faces; the mesh may be degenerate")
     return Atlas(
@@ -85,11 +86,14 @@ def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None
         uvs=np.clip(uvs, 0.0, 1.0).astype(np.float32),
         charts=int(atlas.chart_count),
         utilisation=float(atlas.utilization),
+        padding=float(np.ceil(padding * PADDING_MARGIN) * scale),
     )
 
 
 def smooth_positions(vertices: np.ndarray, faces: np.ndarray, iterations: int) -> np.ndarray:
-    """(V, 3) float64: each step moves every vertex half-way to the mean of its edge neighbours."""
+    """(V, 3) float64 after `iterations` Taubin steps: move each vertex toward the mean of its edge
+    neighbours by TAUBIN[0], then away by TAUBIN[1]; noise goes, the overall shape and size stay.
+    Vertices on open borders do not move."""
     from scipy.sparse import coo_matrix, diags
 
     n = len(vertices)
@@ -99,11 +103,46 @@ def smooth_positions(vertices: np.ndarray, faces: np.ndarray, iterations: int) -
     adjacency.data[:] = 1.0  # an edge shared by two faces counts once
     degree = np.asarray(adjacency.sum(axis=1)).ravel()
     mean_of_neighbours = diags(1.0 / np.maximum(degree, 1.0)) @ adjacency
+    # Vertices on an open border stay put: a lone wall or triangle would otherwise shrink to a point.
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    unique_edges, uses = np.unique(edges, axis=0, return_counts=True)
+    border = np.zeros(n, bool)
+    border[unique_edges[uses == 1].ravel()] = True
     x = vertices.copy()
-    isolated = degree == 0
+    moving = ((degree > 0) & ~border)[:, None]
     for _ in range(iterations):
-        x = np.where(isolated[:, None], x, 0.5 * x + 0.5 * (mean_of_neighbours @ x))
+        for factor in TAUBIN:
+            x = np.where(moving, x + factor * (mean_of_neighbours @ x - x), x)
     return x
+
+
+def _generate(xatlas, positions: np.ndarray, faces: np.ndarray, blocks: list[np.ndarray], texture_size: int,
+              padding: int):
+    """-> (xatlas.Atlas, each block's vertex ids), or (None, []) when xatlas lays out nothing.
+
+    xatlas aims its texel density at the resolution but its atlas often comes out larger (demo room:
+    2,364 x 2,344 for 2,048, more with many small charts), and a second packing at a density lowered by
+    that factor came out far smaller (0.8 of the square) at twice the time. So it packs once, with the
+    padding raised by PADDING_MARGIN to cover the usual overshoot; the caller scales the atlas into the
+    square (one density, no squeeze) and reports the padding that is left.
+    """
+    atlas = xatlas.Atlas()
+    block_vertices = []
+    for block in blocks:
+        used, local = np.unique(faces[block], return_inverse=True)
+        block_vertices.append(used)
+        atlas.add_mesh(positions[used], local.reshape(-1, 3).astype(np.uint32))
+    pack = xatlas.PackOptions()
+    pack.resolution = int(texture_size)
+    pack.padding = int(np.ceil(padding * PADDING_MARGIN))
+    pack.bilinear = True  # leave room for bilinear filtering at chart borders
+    pack.blockAlign = True
+    atlas.generate(xatlas.ChartOptions(), pack)
+    if atlas.atlas_count < 1:
+        return None, []
+    if atlas.atlas_count > 1:  # not asked for (resolution with automatic density packs into one)
+        raise VortxError(f"the UV atlas needed {atlas.atlas_count} textures; use a larger texture size")
+    return atlas, block_vertices
 
 
 def face_blocks(vertices: np.ndarray, faces: np.ndarray, size: float) -> list[np.ndarray]:

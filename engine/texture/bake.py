@@ -215,6 +215,6 @@ def bake_texture(mesh: Mesh, views: Sequence[TextureView], options: TextureOptio
     )
     timings["total"] = time.perf_counter() - started
     stats.update({"texture_size": options.texture_size, "charts": atlas.charts,
-                  "atlas_utilisation": round(atlas.utilisation, 4), "faces": int(len(atlas.faces)),
+                  "atlas_utilisation": round(atlas.utilisation, 4), "padding_texels": round(atlas.padding, 2), "faces": int(len(atlas.faces)),
                   "vertices": int(len(source)), "timings_s": {k: round(v, 3) for k, v in timings.items()}})
     return textured, stats

@@ -37,3 +37,38 @@ def test_atlas_keeps_faces_and_vertices_and_packs_without_overlap():
 def test_an_empty_mesh_is_refused():
     with pytest.raises(VortxError, match="no faces"):
         uv_atlas(np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int32), None, 512, 2)
+
+
+@pytest.mark.parametrize("name", ["quad", "triangle", "low-poly box"])
+def test_low_poly_meshes_get_an_atlas(name):
+    """The charting copy is smoothed without shrinking: a two-triangle wall must not collapse to a point."""
+    if name == "quad":
+        vertices = np.float32([[0, 0, 0], [2, 0, 0], [2, 0, 1], [0, 0, 1]])
+        faces = np.int32([[0, 1, 2], [0, 2, 3]])
+    elif name == "triangle":
+        vertices, faces = np.float32([[0, 0, 0], [1, 0, 0], [0, 0, 1]]), np.int32([[0, 1, 2]])
+    else:
+        vertices, faces = box(1)
+    atlas = uv_atlas(vertices, faces, None, texture_size=512, padding=4)
+    uv_tri = atlas.uvs[atlas.faces].astype(np.float64)
+    assert (0.5 * np.abs(np.cross(uv_tri[:, 1] - uv_tri[:, 0], uv_tri[:, 2] - uv_tri[:, 0])) > 0).all()
+
+
+def test_the_atlas_fills_the_texture_at_one_density():
+    """UVs are in texture texels: the charts span the square (not squeezed into part of it), and every
+    face gets the same texels per square metre (a flat grid, which smoothing leaves as it is)."""
+    n = 40
+    s, t = np.meshgrid(np.linspace(0, 3, n + 1), np.linspace(0, 2, n + 1), indexing="ij")
+    vertices = np.stack([s.ravel(), np.zeros(s.size), t.ravel()], 1).astype(np.float32)
+    idx = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[:-1, 1:].ravel(), idx[1:, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, d], 1), np.stack([a, d, c], 1)]).astype(np.int32)
+    for size in (512, 2048):
+        atlas = uv_atlas(vertices, faces, None, texture_size=size, padding=4)
+        assert atlas.uvs.max() <= 1.0 and atlas.uvs.max(axis=0).max() > 0.85
+        uv_tri = atlas.uvs[atlas.faces].astype(np.float64)
+        uv_area = 0.5 * np.abs(np.cross(uv_tri[:, 1] - uv_tri[:, 0], uv_tri[:, 2] - uv_tri[:, 0]))
+        tri = vertices[faces].astype(np.float64)
+        area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+        ratio = uv_area / area
+        assert ratio.max() / ratio.min() < 1.2
