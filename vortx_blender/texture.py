@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import datetime
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional
 
@@ -75,7 +75,13 @@ def request_from_scene(scene: "bpy.types.Scene", obj: Optional["bpy.types.Object
 
     if obj is None or obj.type != "MESH" or not obj.get(RESULT_TAG):
         raise VortxError("No VoRTX result to bake: Reconstruct first, or select the result mesh")
+    if obj.mode != "OBJECT":
+        raise VortxError(f"'{obj.name}' is in {obj.mode.replace('_', ' ').title()} Mode: switch to Object Mode to "
+                         "bake (the bake replaces its mesh)")
     options = recon_settings_from_scene(scene.vortx, with_weights=False).texture_options
+    recorded = recorded_voxel_size(obj)
+    if recorded is not None:  # the occlusion tolerance of the voxels the result was made with
+        options = replace(options, occlusion_tolerance=2 * recorded)
     # The cameras as they are (not re-prepared like Reconstruct's scene_capture, which may move them):
     # the result mesh shares their world, so the photos project onto it from exactly there.
     capture = posed_capture_from_scene(scene)
@@ -185,6 +191,9 @@ def apply_bake(obj: "bpy.types.Object", request: BakeRequest, outcome: BakeOutco
 
     from . import result as results
 
+    if obj.mode != "OBJECT":  # Edit Mode keeps its own copy of the mesh: a swap would not take
+        raise VortxError(f"'{obj.name}' was put in {obj.mode.replace('_', ' ').title()} Mode while the texture "
+                         "was baking; nothing was changed: switch to Object Mode and bake again")
     textured = outcome.textured
     made: list[tuple[Any, Any]] = []  # (bpy.data collection, new datablock), removed again on failure
     try:
@@ -204,6 +213,10 @@ def apply_bake(obj: "bpy.types.Object", request: BakeRequest, outcome: BakeOutco
     old_materials = [m for m in old.materials if m is not None]
     name = old.name
     obj.data = mesh
+    if obj.data != mesh:  # refused by Blender: leave everything as it was
+        for collection, block in reversed(made):
+            collection.remove(block)
+        raise VortxError(f"Blender did not let the bake replace the mesh of '{obj.name}'; nothing was changed")
     obj.modifiers.clear()
     obj[PROP_TEXTURE] = provenance
     if old.users == 0:
@@ -216,6 +229,17 @@ def apply_bake(obj: "bpy.types.Object", request: BakeRequest, outcome: BakeOutco
             if image is not None and image.users == 0:
                 bpy.data.images.remove(image)
     results.show_observation(obj, getattr(obj, results.SHOW_OBSERVATION, False))
+
+
+def recorded_voxel_size(obj: "bpy.types.Object") -> Optional[float]:
+    """The voxel size the result was reconstructed with (its settings property), or None."""
+    from .result import PROP_SETTINGS
+
+    try:
+        value = json.loads(obj.get(PROP_SETTINGS, "{}")).get("voxel_size")
+    except (json.JSONDecodeError, AttributeError):
+        return None
+    return float(value) if isinstance(value, (int, float)) and value > 0 else None
 
 
 def texture_provenance(request: BakeRequest, outcome: BakeOutcome) -> dict[str, Any]:

@@ -30,9 +30,9 @@ MESH_SUFFIXES = (".ply", ".obj", ".glb")  # .glb and .obj are textured (engine/t
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("capture", type=Path, help="capture folder (any layout `python -m engine info` reads), with poses")
     parser.add_argument("--out", type=Path, required=True,
-                        help="output mesh: .ply (every face, vertex colours), or a textured VR-ready result: .glb (one file, "
-                             "texture embedded) or .obj (+ .mtl + _texture.png), decimated to --face-budget; a .json "
-                             "sidecar is written beside it")
+                        help="output mesh: .ply (every face, vertex colours, confidence layer), or a textured VR-ready "
+                             "result: .glb (one file, texture embedded) or .obj (+ .mtl + _texture.png), decimated to "
+                             "--face-budget, with the .ply beside it; a .json sidecar is written beside it")
     add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="metres above the floor, for the scale of captures whose poses are not metric "
@@ -89,33 +89,37 @@ def run(args: argparse.Namespace) -> int:
         report_preparation(prepared)
         capture = prepared.capture
         result = reconstruct(capture, settings, progress=progress)
-        textured = None
-        if out.suffix.lower() != ".ply" and not result.is_empty:
-            from ..texture.views import views_from_capture
-            from ..texture.vr import textured_result
+        # The full mesh with vertex colours and the confidence layer comes first, as a PLY (beside a
+        # textured .glb / .obj too): a bake that fails or is interrupted loses no reconstruction.
+        ply = out.with_suffix(".ply")
+        write_mesh(ply, result.mesh)
+        textured, written = None, [ply]
+        if out.suffix.lower() != ".ply":
+            out.unlink(missing_ok=True)  # no stale textured file of an earlier run
+            if not result.is_empty:
+                from ..texture.files import write_textured
+                from ..texture.views import views_from_capture
+                from ..texture.vr import textured_result
 
-            textured, texture_stats = textured_result(result.mesh, views_from_capture(capture),
-                                                      settings.texture_options, progress)
-            result.stats["texture"] = texture_stats
+                try:
+                    textured, texture_stats = textured_result(result.mesh, views_from_capture(capture),
+                                                              settings.texture_options, progress)
+                except VortxError as error:
+                    raise VortxError(f"{error} (the untextured mesh is in {ply})") from error
+                result.stats["texture"] = texture_stats
+                written = write_textured(out, textured, extras={"vortx_settings": settings.to_dict()}) + [ply]
+            else:
+                out = ply
     finally:
         progress.close()
 
-    if textured is not None:
-        from ..texture.files import write_textured
-
-        written = write_textured(out, textured, extras={"vortx_settings": settings.to_dict()})
-    elif out.suffix.lower() == ".ply":
-        write_mesh(out, result.mesh)
-    else:  # nothing to texture: an empty PLY beside the sidecar says so, and no stale file of an earlier run stays
-        out.unlink(missing_ok=True)
-        out = out.with_suffix(".ply")
-        write_mesh(out, result.mesh)
     sidecar = {
         "capture": str(Path(args.capture).resolve()),
         "capture_format": capture.format,
         "capture_warnings": capture_warnings,
         "poses": prepared.summary(),
         "output": str(out.resolve()),
+        "files": [str(p.resolve()) for p in written],
         **result.stats,
         "tile_details": [t.to_dict() for t in result.tiles],
     }

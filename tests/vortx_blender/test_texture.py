@@ -310,3 +310,40 @@ def test_clean_up_is_refused_on_a_textured_result(blender, capture_dir) -> None:
     with pytest.raises(RuntimeError, match="poll"):
         bpy.ops.vortx.clean_result()
     assert len(obj.data.polygons) == faces and obj.data.uv_layers.active is not None
+
+
+def test_edit_mode_is_refused_before_and_after_the_bake(blender, capture_dir, monkeypatch) -> None:
+    """In Edit Mode Blender keeps its own copy of the mesh, so a swap would silently not happen: the
+    bake refuses to start, and a bake that finishes after the user entered Edit Mode changes nothing."""
+    import bpy
+
+    texture = blender.vortx_blender.texture
+    scene, obj = textured_scene(blender, capture_dir)
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.object.mode_set(mode="EDIT")
+    try:
+        with pytest.raises(blender.engine.errors.VortxError, match="switch to Object Mode"):
+            texture.request_from_scene(scene, obj, bpy.context.evaluated_depsgraph_get())
+    finally:
+        bpy.ops.object.mode_set(mode="OBJECT")
+    request = texture.request_from_scene(scene, obj, bpy.context.evaluated_depsgraph_get())
+    outcome = texture.bake_texture_job(request)(lambda *a: None, blender.engine.jobs.CancelToken())
+    before = data_state(scene)
+    bpy.ops.object.mode_set(mode="EDIT")
+    try:
+        with pytest.raises(blender.engine.errors.VortxError, match="nothing was changed"):
+            texture.apply_bake(obj, request, outcome)
+    finally:
+        bpy.ops.object.mode_set(mode="OBJECT")
+    assert data_state(scene) == before
+
+
+def test_the_occlusion_tolerance_follows_the_results_voxel_size(blender, capture_dir) -> None:
+    import bpy
+
+    texture = blender.vortx_blender.texture
+    scene, obj = textured_scene(blender, capture_dir)
+    obj[blender.vortx_blender.result.PROP_SETTINGS] = json.dumps({"voxel_size": 0.02})
+    scene.vortx.voxel_size = 0.1
+    request = texture.request_from_scene(scene, obj, bpy.context.evaluated_depsgraph_get())
+    assert request.options.occlusion_tolerance == pytest.approx(0.04)

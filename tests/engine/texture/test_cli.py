@@ -47,7 +47,10 @@ def test_reconstruct_to_glb_writes_a_light_textured_room(room, tmp_path, capsys)
     assert 0 < faces <= 3000
     texture = glb_texture(out)
     assert texture.shape == (512, 512, 3) and texture.std() > 5  # photo content, not a flat fill
+    full = read_ply(out.with_suffix(".ply"))  # the full mesh beside it: vertex colours, confidence layer
+    assert len(full.faces) >= faces and full.colors is not None and "observations" in full.attributes
     side = json.loads(out.with_suffix(".json").read_text())
+    assert side["files"] == [str(out), str(out.with_suffix(".ply"))]
     assert side["texture"]["faces"] == faces and side["texture"]["texels_seen"] > 0.5 * side["texture"]["texels"]
     assert "512 px texture" in capsys.readouterr().out
 
