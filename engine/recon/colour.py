@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from ..geometry.cameras import camera_to_pixels, scale_intrinsics, world_to_camera
@@ -32,18 +33,22 @@ class ColourView:
     pose: np.ndarray  # (4, 4) camera-to-world, OpenCV axes
 
 
-def _bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """RGB (N, 3) float 0..1 at pixel coordinates u, v (pixel centres at +0.5), edge-clamped."""
-    h, w = image.shape[:2]
-    x = np.clip(u - 0.5, 0, w - 1)
-    y = np.clip(v - 0.5, 0, h - 1)
-    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
-    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-    fx, fy = (x - x0)[:, None], (y - y0)[:, None]
-    img = image.astype(np.float32) / 255.0
-    top = img[y0, x0] * (1 - fx) + img[y0, x1] * fx
-    bottom = img[y1, x0] * (1 - fx) + img[y1, x1] * fx
-    return top * (1 - fy) + bottom * fy
+REMAP_WIDTH = 4096  # cv2.remap takes maps of at most 32767 columns: sample points are laid out in rows
+
+
+def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(N, 3) float32 sRGB 0..255 at pixel coordinates u, v (pixel (0, 0) covers [0, 1)^2, its centre at
+    0.5), edge-clamped; by cv2.remap, without a float copy of the (possibly 12-megapixel) photo."""
+    n = len(u)
+    if n == 0:
+        return np.zeros((0, 3), np.float32)
+    rows = -(-n // REMAP_WIDTH)
+    map_x = np.zeros(rows * REMAP_WIDTH, np.float32)
+    map_y = np.zeros(rows * REMAP_WIDTH, np.float32)
+    map_x[:n], map_y[:n] = u - 0.5, v - 0.5  # cv2 puts integer coordinates at pixel centres
+    out = cv2.remap(image, map_x.reshape(rows, REMAP_WIDTH), map_y.reshape(rows, REMAP_WIDTH),
+                    interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    return out.reshape(-1, 3)[:n].astype(np.float32)
 
 
 def visible_points(
@@ -113,7 +118,7 @@ def colour_vertices(mesh: Mesh, views: list[ColourView], tolerance: float) -> np
         # the tolerance, at a quarter of the rasterisation cost of a 320-pixel image.
         depth = occlusion_depth(mesh, view.K, view.pose, (w, h))
         ids, u, v, cosine = visible_vertices(mesh, view, depth, tolerance)
-        total[ids] += cosine[:, None] * _bilinear(view.image, u, v)
+        total[ids] += cosine[:, None] * (sample_bilinear(view.image, u, v) / 255.0)
         weight[ids] += cosine
     colours = np.full((n, 3), UNSEEN_GREY, dtype=np.float64)
     seen = weight > 0

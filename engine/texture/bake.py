@@ -3,10 +3,10 @@
 For each texel (texels.py) and each photo: the occlusion test the vertex colours use
 (`recon.colour.visible_points`, against the mesh's own depth map), then a weight
 
-    w = cos(viewing angle) * (focal px / depth)^2 * sharpness,
+    w = cos(viewing angle) * (focal px / depth)^2 * sharpness * border ramp,
 
 the texel's footprint in the photo (closer and more frontal views show more detail) times how sharp
-the photo is. Colours are sampled bilinearly at full resolution, converted to linear light, multiplied
+the photo is, faded out near the photo's edges (border_ramp). Colours are sampled bilinearly at full resolution, converted to linear light, multiplied
 by the photo's exposure gain (exposure.py) and blended with weights w^blend_power: the best view
 dominates, so small pose errors do not ghost, and the weights change smoothly over the surface, so
 view changes and chart borders do not step. A texel's weights depend on its 3D point only, so both
@@ -27,7 +27,7 @@ from ..colour_space import SRGB_BYTE_TO_LINEAR, linear_to_srgb
 from ..geometry.cameras import scale_intrinsics
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
-from ..recon.colour import UNSEEN_GREY, occlusion_depth, visible_points
+from ..recon.colour import UNSEEN_GREY, occlusion_depth, sample_bilinear, visible_points
 from .atlas import uv_atlas
 from .exposure import ViewSamples, exposure_gains
 from .options import TextureOptions
@@ -35,22 +35,16 @@ from .texels import Texels, rasterise_uv
 from .textured_mesh import TexturedMesh
 from .views import TextureView, sharpness, sharpness_weights
 
+BORDER_RAMP = 0.05  # share of a photo's short side over which its weight fades out at the picture's edge
 TEXELS_PER_CHUNK = 1_000_000  # bounds each photo's per-texel temporaries to ~100 MB
-REMAP_WIDTH = 4096  # cv2.remap takes maps of at most 32767 columns: sample points are laid out in rows
 
 
-def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """(N, 3) float32 sRGB 0..255 at pixel coordinates u, v (pixel (0, 0) covers [0, 1)^2), edge-clamped."""
-    n = len(u)
-    if n == 0:
-        return np.zeros((0, 3), np.float32)
-    rows = -(-n // REMAP_WIDTH)
-    map_x = np.zeros(rows * REMAP_WIDTH, np.float32)
-    map_y = np.zeros(rows * REMAP_WIDTH, np.float32)
-    map_x[:n], map_y[:n] = u - 0.5, v - 0.5  # cv2 puts integer coordinates at pixel centres
-    out = cv2.remap(image, map_x.reshape(rows, REMAP_WIDTH), map_y.reshape(rows, REMAP_WIDTH),
-                    interpolation=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
-    return out.reshape(-1, 3)[:n].astype(np.float32)
+def border_ramp(u: np.ndarray, v: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """(N,) in (0, 1]: 1 inside the photo, falling to ~0 over the last BORDER_RAMP of its short side, so a
+    photo's weight fades out where its picture ends instead of stepping (the colour would step there)."""
+    w, h = size
+    to_edge = np.minimum(np.minimum(u, w - u), np.minimum(v, h - v))
+    return np.clip(to_edge / (BORDER_RAMP * min(w, h)), 1e-3, 1.0)
 
 
 def _to_linear(srgb_0_255: np.ndarray) -> np.ndarray:
@@ -152,7 +146,7 @@ def bake_colours(mesh: Mesh, texels: Texels, views: Sequence[TextureView], optio
                                                   depths[i], options.occlusion_tolerance)
             if len(ids) == 0:
                 continue
-            w = (cosine * (focal / z) ** 2 * sharp[i]) ** options.blend_power
+            w = (cosine * (focal / z) ** 2 * sharp[i] * border_ramp(u, v, view.size)) ** options.blend_power
             w = (w / (focal ** (2 * options.blend_power))).astype(np.float32)  # keeps float32 in range
             colour = _to_linear(sample_bilinear(image, u, v)) * gains[i]
             ids = chunk[ids]

@@ -74,7 +74,9 @@ def run(args: argparse.Namespace) -> int:
 
 def report_texture(out: Path, written: list[Path], stats: dict) -> int:
     """Sidecar beside `out` and one line for the user; a warning when the photos saw little of the mesh."""
-    out.with_suffix(".json").write_text(json.dumps({"texture": stats, "files": [str(p) for p in written]}, indent=1) + "\n")
+    from ..recon.cli import sidecar_path
+
+    sidecar_path(out).write_text(json.dumps({"texture": stats, "files": [str(p) for p in written]}, indent=1) + "\n")
     seen = stats["texels_seen"] / max(stats["texels"], 1)
     if seen < LITTLE_SEEN:
         print(f"warning: the photos saw only {100 * seen:.1f} % of the surface; is the capture the one the mesh was "

@@ -150,16 +150,3 @@ def write_textured(path: PathLike, mesh: TexturedMesh, extras: Optional[dict[str
     if suffix == ".obj":
         return write_textured_obj(path, mesh)
     raise VortxError(f"{path.name}: a textured result is written as .glb or .obj")
-
-
-def read_glb(path: PathLike) -> tuple[dict[str, Any], bytes]:
-    """The JSON document and binary chunk of a GLB (for checks and tests)."""
-    data = Path(path).read_bytes()
-    magic, version, length = struct.unpack_from("<III", data, 0)
-    if magic != GLB_MAGIC or version != GLB_VERSION or length != len(data):
-        raise VortxError(f"{path} is not a glTF 2.0 binary file")
-    json_length, kind = struct.unpack_from("<II", data, 12)
-    document = json.loads(data[20:20 + json_length])
-    offset = 20 + json_length
-    bin_length, kind = struct.unpack_from("<II", data, offset)
-    return document, data[offset + 8:offset + 8 + bin_length]

@@ -14,7 +14,7 @@ from engine.__main__ import main
 from engine.mesh_io import read_ply
 from engine.capture import Capture, Frame
 from engine.capture.writers import write_scannet
-from engine.texture.files import read_glb
+from fixtures_texture import read_glb  # an independent reader: the writer is not checked with its own code
 
 DEMO = Path(__file__).resolve().parents[3] / "samples" / "demo_room"
 FAST = ["--voxel-size", "0.08", "--stereo-image-size", "128", "--stereo-views", "10", "--stereo-planes", "40",

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from engine.errors import VortxError
-from engine.texture.files import read_glb, write_glb, write_textured, write_textured_obj
+from engine.texture.files import write_glb, write_textured, write_textured_obj
+from fixtures_texture import read_glb  # an independent reader: the writer is not checked with its own code
 from engine.texture.textured_mesh import TexturedMesh
 
 
