@@ -7,9 +7,10 @@ For each texel (texels.py) and each photo: the occlusion test the vertex colours
 
 the texel's footprint in the photo (closer and more frontal views show more detail) times how sharp
 the photo is, faded out near the photo's edges (border_ramp). Colours are sampled bilinearly at full resolution, converted to linear light, multiplied
-by the photo's exposure gain (exposure.py) and blended with weights w^blend_power: the best view
-dominates, so small pose errors do not ghost, and the weights change smoothly over the surface, so
-view changes and chart borders do not step. A texel's weights depend on its 3D point only, so both
+by the photo's exposure gain (exposure.py) and blended with weights w^blend_power (1 by default:
+on held-out photos the footprint-weighted blend beat favouring the best view, whose sharper detail
+lands a little off wherever poses or geometry are; options.py has the numbers). The weights change
+smoothly over the surface, so view changes and chart borders do not step. A texel's weights depend on its 3D point only, so both
 sides of a chart seam (the same surface points) get the same colour: the seams are levelled by
 construction. Texels no photo sees take the mesh's vertex colours. Gutters around the charts are
 filled with their border colours, so bilinear filtering and mipmaps do not pull in black.

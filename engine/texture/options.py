@@ -21,8 +21,10 @@ class TextureOptions:
     min_piece_fraction: pieces with less than this share of the faces are dropped before the atlas
     (specks in the air cost charts and draw calls).
     padding: texels between charts, filled with the chart's border colour so mipmaps do not bleed.
-    blend_power: view weights are raised to this power before blending: 1 averages the views (soft,
-    ghosts where poses disagree), large values pick the best view (sharp, seams at view changes).
+    blend_power: view weights are raised to this power before blending: 1 blends the views by their
+    footprint weight, large values pick the best view (sharper where poses and geometry are exact,
+    steps at view changes). Measured on held-out photos (engine eval-texture, 2048 px): demo room
+    PSNR 29.81 / 28.88 dB at 1 / 4 (vertex colours 27.60), fox photos 21.87 / 20.89 (20.89).
     occlusion_long_side: the long side of the depth maps used for the occlusion test (pixels).
     occlusion_tolerance: metres a point may lie behind the rendered depth and still count as seen (two
     voxels of the reconstruction, as for the vertex colours: ReconSettings sets it from its voxel size).
@@ -33,7 +35,7 @@ class TextureOptions:
     face_budget: int = 100_000
     min_piece_fraction: float = 0.001
     padding: int = 4
-    blend_power: float = 4.0
+    blend_power: float = 1.0
     occlusion_long_side: int = 320
     occlusion_tolerance: float = 0.08
     exposure: bool = True
