@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from ..colour_space import SRGB_BYTE_TO_LINEAR, linear_to_srgb
+from ..errors import VortxError
 from ..geometry.cameras import scale_intrinsics
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
@@ -172,6 +173,8 @@ def bake_texture(mesh: Mesh, views: Sequence[TextureView], options: TextureOptio
     if present, fill texels no photo sees.
     """
     options.validate()
+    if not views:
+        raise VortxError("no photos to bake the texture from: the capture needs posed photos")
     if mesh.normals is None:  # meshes from files or other tools; the engine's results carry them
         from ..recon.mesh import vertex_normals
 

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+INTERPOLATE_CHUNK = 2_000_000
 CANDIDATES_PER_CALL = 4_000_000  # bounds the (triangles, candidate texels) buffers to ~100 MB
 
 
@@ -28,9 +29,15 @@ class Texels:
         return len(self.rows)
 
     def interpolate(self, per_vertex: np.ndarray, faces: np.ndarray) -> np.ndarray:
-        """(N, C) float32: per-vertex values (V, C) at the texels."""
-        corners = per_vertex[faces[self.face]]  # (N, 3, C)
-        return np.einsum("nk,nkc->nc", self.bary, corners.astype(np.float32))
+        """(N, C) float32: per-vertex values (V, C) at the texels (in chunks: an 8192 px texture has
+        ~40 M texels, and the (N, 3, C) corner array at once would take gigabytes)."""
+        per_vertex = np.asarray(per_vertex, np.float32)
+        out = np.empty((len(self), per_vertex.shape[1]), np.float32)
+        for start in range(0, len(self), INTERPOLATE_CHUNK):
+            part = slice(start, start + INTERPOLATE_CHUNK)
+            corners = per_vertex[faces[self.face[part]]]  # (n, 3, C)
+            out[part] = np.einsum("nk,nkc->nc", self.bary[part], corners)
+        return out
 
 
 def rasterise_uv(uvs: np.ndarray, faces: np.ndarray, size: tuple[int, int]) -> Texels:
@@ -47,7 +54,7 @@ def rasterise_uv(uvs: np.ndarray, faces: np.ndarray, size: tuple[int, int]) -> T
     extent = np.maximum(high - low + 1, 1).max(axis=1)
     # Bins of powers of two: few groups, at most 4x wasted candidates.
     bins = 2 ** np.ceil(np.log2(extent)).astype(np.int64)
-    covered = np.full(H * W, -1, dtype=np.int64)
+    covered = np.full(H * W, -1, dtype=np.int32)  # face ids; int32 halves the 8192 px buffer
     bary_image = np.zeros((H * W, 3), dtype=np.float32)
     for n in np.unique(bins):
         group = np.flatnonzero(bins == n)

@@ -112,6 +112,8 @@ def test_bake_can_be_cancelled_and_refuses_bad_options(striped_wall):
         bake_texture(mesh, views, OPTIONS, cancel=token)
     with pytest.raises(VortxError, match="texture size must be one of"):
         bake_texture(mesh, views, TextureOptions(texture_size=1000))
+    with pytest.raises(VortxError, match="no photos to bake"):
+        bake_texture(mesh, [], OPTIONS)
 
 
 def test_a_mesh_without_normals_gets_them_from_its_winding(striped_wall):

@@ -57,6 +57,8 @@ def test_a_tiny_face_budget_is_refused_with_the_setting_named():
         TextureOptions(face_budget=10).validate()
 
 
-def test_decimation_leaves_no_triangle_twice():
-    light = decimate(bumpy_sheet(80), 300)
-    assert len(np.unique(np.sort(light.faces, axis=1), axis=0)) == len(light.faces)
+def test_decimation_leaves_no_triangle_twice_and_meets_small_budgets():
+    for budget in (300, 120):
+        light = decimate(bumpy_sheet(80), budget)
+        assert len(np.unique(np.sort(light.faces, axis=1), axis=0)) == len(light.faces)
+        assert len(light.faces) <= budget
