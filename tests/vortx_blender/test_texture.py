@@ -347,3 +347,37 @@ def test_the_occlusion_tolerance_follows_the_results_voxel_size(blender, capture
     scene.vortx.voxel_size = 0.1
     request = texture.request_from_scene(scene, obj, bpy.context.evaluated_depsgraph_get())
     assert request.options.occlusion_tolerance == pytest.approx(0.04)
+
+
+def test_cycles_renders_the_baked_texture(blender, capture_dir, tmp_path) -> None:
+    """A Cycles render of the baked result from a capture camera, lit by a lamp at the camera, shows the
+    photo's pattern (not Blender's magenta missing-texture colour, not a flat material)."""
+    import bpy
+    import cv2
+
+    scene, obj = textured_scene(blender, capture_dir)
+    assert bpy.ops.vortx.bake_texture() == {"FINISHED"}
+    cameras = blender.vortx_blender.cameras
+    camera = next(o for o in scene.objects if cameras.is_capture_camera(o))
+    lamp = bpy.data.objects.new("flash", bpy.data.lights.new("flash", "POINT"))
+    lamp.data.energy = 40.0
+    lamp.matrix_world = camera.matrix_world
+    scene.collection.objects.link(lamp)
+    scene.camera = camera
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = 8
+    scene.cycles.use_denoising = False
+    scene.view_settings.view_transform = "Standard"
+    scene.render.resolution_percentage = 100
+    scene.render.filepath = str(tmp_path / "render.png")
+    bpy.ops.render.render(write_still=True)
+    render = cv2.imread(str(tmp_path / "render.png"))[..., ::-1].astype(np.float64)
+    photo = cv2.imread(str(camera[cameras.PROP_IMAGE]))[..., ::-1].astype(np.float64)
+    assert render.shape == photo.shape
+    magenta = (render[..., 0] > 200) & (render[..., 1] < 50) & (render[..., 2] > 200)
+    assert magenta.mean() < 0.01 and render.std() > 5
+    # The lamp's falloff changes brightness, not hue: compare the colours' chromaticity pixel by pixel.
+    def chroma(image):
+        return (image / np.maximum(image.sum(axis=2, keepdims=True), 1.0)).ravel()
+
+    assert np.corrcoef(chroma(render), chroma(photo))[0, 1] > 0.8
