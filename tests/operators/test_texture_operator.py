@@ -16,45 +16,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from fixtures_modal import WindowManager, Workspace
 from fixtures_texture import make_box_capture, room_mesh, textured_scene
 
 
 @pytest.fixture(scope="module")
 def capture_dir(blender, tmp_path_factory) -> Path:
     return make_box_capture(blender, tmp_path_factory.mktemp("bake_operator") / "box_room")
-
-
-class _WindowManager:
-    def __init__(self) -> None:
-        self.timers: set = set()
-
-    def event_timer_add(self, interval, window=None):
-        timer = object()
-        self.timers.add(timer)
-        return timer
-
-    def event_timer_remove(self, timer) -> None:
-        self.timers.remove(timer)
-
-    def modal_handler_add(self, op) -> bool:
-        return True
-
-    def progress_begin(self, lo, hi) -> None:
-        pass
-
-    def progress_update(self, value) -> None:
-        pass
-
-    def progress_end(self) -> None:
-        pass
-
-
-class _Workspace:
-    def __init__(self) -> None:
-        self.status: list = []
-
-    def status_text_set(self, text) -> None:
-        self.status.append(text)
 
 
 def _modal_bake(blender):
@@ -116,8 +84,8 @@ def test_modal_bake_shows_progress_and_esc_cancels(blender, capture_dir, monkeyp
 
     monkeypatch.setattr(vr, "textured_result", held)
     scene, obj = textured_scene(blender, capture_dir)
-    context = SimpleNamespace(scene=scene, active_object=None, window=object(), window_manager=_WindowManager(),
-                              workspace=_Workspace(), screen=None, evaluated_depsgraph_get=bpy.context.evaluated_depsgraph_get)
+    context = SimpleNamespace(scene=scene, active_object=None, window=object(), window_manager=WindowManager(),
+                              workspace=Workspace(), screen=None, evaluated_depsgraph_get=bpy.context.evaluated_depsgraph_get)
     before = _state(scene)
 
     op = _modal_bake(blender)

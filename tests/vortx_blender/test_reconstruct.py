@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 
 from conftest import scene_state
+from fixtures_modal import WindowManager, Workspace
 
 # Tiny run: 16 cm voxels in a 2 m clipped room, 96 px images, 3 views per tile, 2 colour views.
 TINY = {"voxel_size": 0.16, "tile_size": 8, "view_count": 3, "image_size": 96, "colour_views": 2,
@@ -435,39 +436,6 @@ def test_invalid_settings_are_refused_with_the_setting_named(blender, empty_scen
 # --- the interactive path: Reconstruct's own methods on a modal stand-in (headless has no events) -------
 
 
-class _WindowManager:
-    def __init__(self) -> None:
-        self.timers: set = set()
-
-    def event_timer_add(self, interval, window=None):
-        timer = object()
-        self.timers.add(timer)
-        return timer
-
-    def event_timer_remove(self, timer) -> None:
-        self.timers.remove(timer)
-
-    def modal_handler_add(self, op) -> bool:
-        return True
-
-    def progress_begin(self, lo, hi) -> None:
-        pass
-
-    def progress_update(self, value) -> None:
-        pass
-
-    def progress_end(self) -> None:
-        pass
-
-
-class _Workspace:
-    def __init__(self) -> None:
-        self.status: list = []
-
-    def status_text_set(self, text) -> None:
-        self.status.append(text)
-
-
 def _modal_reconstruct(blender):
     """The mixin with VORTX_OT_reconstruct's own methods, held as Blender holds a modal operator."""
     import bpy
@@ -529,7 +497,7 @@ def test_modal_run_shows_tiles_in_the_status_bar_and_esc_cancels(blender, captur
 
     monkeypatch.setattr(driver(blender), "reconstruct", engine)
     scene = posed_scene(blender, capture_dir)
-    context = SimpleNamespace(scene=scene, window=object(), window_manager=_WindowManager(), workspace=_Workspace(),
+    context = SimpleNamespace(scene=scene, window=object(), window_manager=WindowManager(), workspace=Workspace(),
                               screen=None)
     before = full_state(scene)
 
