@@ -7,8 +7,9 @@ All three keep metres (scale 1, modifiers and the object transform applied) and 
   photos were.
 - glTF is Y-up by specification, and VR viewers rely on it: the exporter's +Y-up conversion stays
   on, so the room stands upright in a headset, and importing the file back into Blender gives the
-  same Z-up world coordinates. Vertex colours go into COLOR_0 (linear, as glTF requires), and the
-  object's `vortx_*` custom properties into the node's extras (provenance travels with the file).
+  same Z-up world coordinates. Vertex colours go into COLOR_0 (linear, as glTF requires), the
+  confidence layer into `_OBSERVATIONS`, `_STEREO_CONFIDENCE`, `_COMPLETED` (as in the engine's GLB),
+  and the object's `vortx_*` custom properties into the node's extras (provenance travels with the file).
 
 A result with a baked photo texture (vortx_blender/texture.py) exports it instead of the vertex
 colours: glTF gets TEXCOORD_0 and a material whose base colour texture is the photo texture (PNG, as
@@ -129,13 +130,46 @@ def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types
                     export_triangulated_mesh=True,
                 )
         else:
-            outcome = bpy.ops.export_scene.gltf(
-                filepath=str(path), export_format="GLB" if kind == "GLB" else "GLTF_SEPARATE", use_selection=True,
-                export_yup=True, export_apply=True, export_normals=True, export_texcoords=textured,
-                export_vertex_color="NONE" if textured else "ACTIVE", export_materials="EXPORT",
-                export_image_format="AUTO", export_extras=True,
-                export_cameras=False, export_lights=False, export_animations=False,
-            )
+            with _confidence_for_gltf(obj):
+                outcome = _export_gltf(path, kind, textured)
     if "FINISHED" not in outcome or not path.is_file():
         raise VortxError(f"the {kind} exporter did not write {path}")
     return path
+
+
+def _export_gltf(path: Path, kind: str, textured: bool) -> set[str]:
+    return bpy.ops.export_scene.gltf(
+        filepath=str(path), export_format="GLB" if kind == "GLB" else "GLTF_SEPARATE", use_selection=True,
+        export_yup=True, export_apply=True, export_normals=True, export_texcoords=textured,
+        export_vertex_color="NONE" if textured else "ACTIVE", export_materials="EXPORT",
+        export_image_format="AUTO", export_extras=True, export_attributes=True,
+        export_cameras=False, export_lights=False, export_animations=False,
+    )
+
+
+@contextmanager
+def _confidence_for_gltf(obj: bpy.types.Object) -> Iterator[None]:
+    """The confidence layer as glTF custom attributes (`_OBSERVATIONS`, ...: glTF's rule for
+    application-specific semantics, the names the engine's GLB uses). Blender's exporter writes only
+    attributes whose name starts with an underscore, so upper-case copies live on the mesh for the
+    export and are removed afterwards."""
+    from ..engine.observation import EVIDENCE_ATTRIBUTES
+
+    mesh = obj.data
+    made = []
+    try:
+        for name in EVIDENCE_ATTRIBUTES:
+            source = mesh.attributes.get(name)
+            if source is None or source.domain != "POINT" or source.data_type != "FLOAT":
+                continue
+            values = [0.0] * len(mesh.vertices)
+            source.data.foreach_get("value", values)
+            copy = mesh.attributes.new("_" + name.upper(), "FLOAT", "POINT")
+            made.append(copy.name)
+            copy.data.foreach_set("value", values)
+        yield
+    finally:
+        for name in made:
+            attribute = mesh.attributes.get(name)
+            if attribute is not None:
+                mesh.attributes.remove(attribute)

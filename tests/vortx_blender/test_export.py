@@ -116,3 +116,20 @@ def test_export_while_showing_observation_writes_the_texture(blender, baked, tmp
     assert "baseColorTexture" in document["materials"][0]["pbrMetallicRoughness"]
     principled = next(n for n in obj.active_material.node_tree.nodes if n.type == "BSDF_PRINCIPLED")
     assert principled.inputs["Base Color"].links[0].from_node.name == results.TEXTURE_OBSERVATION_NODE  # shown again
+
+
+def test_glb_carries_the_confidence_layer(blender, baked, tmp_path) -> None:
+    """The textured result's confidence attributes travel as glTF custom attributes (as in the engine's
+    GLB), with the values the mesh holds; the mesh itself is left without the export's copies."""
+    scene, obj, _ = baked
+    names_before = sorted(a.name for a in obj.data.attributes)
+    path = blender.vortx_blender.export.export_result(obj, tmp_path / "room.glb", scene.view_layers[0])
+    assert sorted(a.name for a in obj.data.attributes) == names_before
+    document, binary = read_glb(path)
+    (primitive,) = document["meshes"][0]["primitives"]
+    accessor = document["accessors"][primitive["attributes"]["_OBSERVATIONS"]]
+    view = document["bufferViews"][accessor["bufferView"]]
+    exported = np.frombuffer(binary, np.float32, accessor["count"], view.get("byteOffset", 0) + accessor.get("byteOffset", 0))
+    values = np.empty(len(obj.data.vertices), np.float32)
+    obj.data.attributes["observations"].data.foreach_get("value", values)
+    assert set(np.unique(exported)) == set(np.unique(values)) and {"_STEREO_CONFIDENCE", "_COMPLETED"} <= set(primitive["attributes"])
