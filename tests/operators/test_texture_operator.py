@@ -16,7 +16,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fixtures_modal import WindowManager, Workspace
+from fixtures_modal import WindowManager, Workspace, modal_operator, tick_until_done
 from fixtures_texture import make_box_capture, room_mesh, textured_scene
 
 
@@ -25,39 +25,7 @@ def capture_dir(blender, tmp_path_factory) -> Path:
     return make_box_capture(blender, tmp_path_factory.mktemp("bake_operator") / "box_room")
 
 
-def _modal_bake(blender):
-    """The mixin with VORTX_OT_bake_texture's own methods, held as Blender holds a modal operator."""
-    import bpy
-
-    Mixin = blender.vortx_blender.job_operator.JobOperatorMixin
-    Bake = bpy.types.VORTX_OT_bake_texture
-
-    class Modal(Mixin):
-        job_title = Bake.job_title
-        make_job_function = Bake.make_job_function
-        apply_result = Bake.apply_result
-        options = SimpleNamespace(is_invoke=True)
-
-        def __init__(self) -> None:
-            self.reports: list = []
-
-        def _is_modal(self, context) -> bool:
-            return True
-
-        def report(self, kind, message) -> None:
-            self.reports.append((set(kind), message))
-
-    return Modal()
-
-
-def _tick_until_done(op, context, limit_s: float = 20.0) -> set:
-    deadline = time.monotonic() + limit_s
-    while time.monotonic() < deadline:
-        result = op.modal(context, SimpleNamespace(type="TIMER", value="NOTHING"))
-        if result != {"RUNNING_MODAL"}:
-            return result
-        time.sleep(0.01)
-    raise AssertionError("the modal bake never finished")
+BAKE_METHODS = ("job_title", "make_job_function", "apply_result")
 
 
 def _state(scene) -> dict:
@@ -88,21 +56,21 @@ def test_modal_bake_shows_progress_and_esc_cancels(blender, capture_dir, monkeyp
                               workspace=Workspace(), screen=None, evaluated_depsgraph_get=bpy.context.evaluated_depsgraph_get)
     before = _state(scene)
 
-    op = _modal_bake(blender)
+    op = modal_operator(blender, "VORTX_OT_bake_texture", BAKE_METHODS)
     assert op.execute(context) == {"RUNNING_MODAL"}
     assert baking.wait(10)
     time.sleep(0.05)
     assert op.modal(context, SimpleNamespace(type="TIMER", value="NOTHING")) == {"RUNNING_MODAL"}
     assert context.workspace.status[-1].startswith("VoRTX Bake Texture: texture: bake 2/6")
     assert op.modal(context, SimpleNamespace(type="ESC", value="PRESS")) == {"RUNNING_MODAL"}
-    assert _tick_until_done(op, context) == {"CANCELLED"}
+    assert tick_until_done(op, context, 20.0) == {"CANCELLED"}
     assert ({"WARNING"}, "Bake Texture cancelled; nothing was changed") in op.reports
     assert _state(scene) == before and not blender.vortx_blender.jobs.is_busy()
 
     finish.set()  # the next run goes through to the end
-    op = _modal_bake(blender)
+    op = modal_operator(blender, "VORTX_OT_bake_texture", BAKE_METHODS)
     assert op.execute(context) == {"RUNNING_MODAL"}
-    assert _tick_until_done(op, context) == {"FINISHED"}
+    assert tick_until_done(op, context, 20.0) == {"FINISHED"}
     assert blender.vortx_blender.result.is_textured(obj)
     assert context.workspace.status[-1] is None and context.window_manager.timers == set()
     (info,) = [message for kind, message in op.reports if kind == {"INFO"}]

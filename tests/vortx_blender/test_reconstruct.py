@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 
 from conftest import scene_state
-from fixtures_modal import WindowManager, Workspace
+from fixtures_modal import WindowManager, Workspace, modal_operator, tick_until_done
 
 # Tiny run: 16 cm voxels in a 2 m clipped room, 96 px images, 3 views per tile, 2 colour views.
 TINY = {"voxel_size": 0.16, "tile_size": 8, "view_count": 3, "image_size": 96, "colour_views": 2,
@@ -436,43 +436,7 @@ def test_invalid_settings_are_refused_with_the_setting_named(blender, empty_scen
 # --- the interactive path: Reconstruct's own methods on a modal stand-in (headless has no events) -------
 
 
-def _modal_reconstruct(blender):
-    """The mixin with VORTX_OT_reconstruct's own methods, held as Blender holds a modal operator."""
-    import bpy
-
-    Mixin = blender.vortx_blender.job_operator.JobOperatorMixin
-    Reconstruct = bpy.types.VORTX_OT_reconstruct
-
-    class Modal(Mixin):
-        job_title = Reconstruct.job_title
-        job_detail = staticmethod(Reconstruct.job_detail)
-        make_job_function = Reconstruct.make_job_function
-        apply_result = Reconstruct.apply_result
-        job_finished = Reconstruct.job_finished
-        options = SimpleNamespace(is_invoke=True)
-
-        def __init__(self) -> None:
-            self.reports: list = []
-
-        def _is_modal(self, context) -> bool:
-            return True
-
-        def report(self, kind, message) -> None:
-            self.reports.append((set(kind), message))
-
-    return Modal()
-
-
-def _tick_until_done(op, context, limit_s: float = 10.0) -> set:
-    import time
-
-    deadline = time.monotonic() + limit_s
-    while time.monotonic() < deadline:
-        result = op.modal(context, SimpleNamespace(type="TIMER", value="NOTHING"))
-        if result != {"RUNNING_MODAL"}:
-            return result
-        time.sleep(0.01)
-    raise AssertionError("the modal run never finished")
+RECONSTRUCT_METHODS = ("job_title", "job_detail", "make_job_function", "apply_result", "job_finished")
 
 
 def test_modal_run_shows_tiles_in_the_status_bar_and_esc_cancels(blender, capture_dir, monkeypatch) -> None:
@@ -501,7 +465,7 @@ def test_modal_run_shows_tiles_in_the_status_bar_and_esc_cancels(blender, captur
                               screen=None)
     before = full_state(scene)
 
-    op = _modal_reconstruct(blender)
+    op = modal_operator(blender, "VORTX_OT_reconstruct", RECONSTRUCT_METHODS)
     assert op.execute(context) == {"RUNNING_MODAL"}
     assert fusing.wait(10)
     time.sleep(0.05)
@@ -509,14 +473,14 @@ def test_modal_run_shows_tiles_in_the_status_bar_and_esc_cancels(blender, captur
     status = context.workspace.status[-1]
     assert status.startswith("VoRTX Reconstruct: fusion 16 cm 0/") and ", tiles 0/" in status and "1 running" in status
     assert op.modal(context, SimpleNamespace(type="ESC", value="PRESS")) == {"RUNNING_MODAL"}
-    assert _tick_until_done(op, context) == {"CANCELLED"}
+    assert tick_until_done(op, context, 10.0) == {"CANCELLED"}
     assert full_state(scene) == before
     assert blender.vortx_blender.tile_overlay.current(scene) is None  # nothing shown from the cancelled run
 
     finish.set()  # the next run goes through to the end
-    op = _modal_reconstruct(blender)
+    op = modal_operator(blender, "VORTX_OT_reconstruct", RECONSTRUCT_METHODS)
     assert op.execute(context) == {"RUNNING_MODAL"}
-    assert _tick_until_done(op, context) == {"FINISHED"}
+    assert tick_until_done(op, context, 10.0) == {"FINISHED"}
     assert results_in(blender, scene) == ["living_room"]
     assert context.workspace.status[-1] is None and context.window_manager.timers == set()
     assert set(blender.vortx_blender.tile_overlay.current(scene).states()) <= {"done", "empty"}
