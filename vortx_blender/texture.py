@@ -121,18 +121,14 @@ def bake_texture_job(request: BakeRequest) -> JobFunction:
     """A bpy-free job function: the VR preset and the bake on the request's mesh, the texture as PNG."""
 
     def run(progress: ProgressCallback, cancel: CancelToken) -> BakeOutcome:
-        from ..engine.recon.mesh import vertex_normals
         from ..engine.texture.files import encode_png
         from ..engine.texture.views import views_from_capture
         from ..engine.texture.vr import textured_result
 
         views = views_from_capture(request.capture)
-        mesh = request.mesh
-        # The bake weighs each photo by its view angle to the surface; a mesh already within the face
-        # budget is not decimated (which would compute them), so the normals are made here.
-        mesh = Mesh(vertices=mesh.vertices, faces=mesh.faces, normals=vertex_normals(mesh.vertices, mesh.faces),
-                    colors=mesh.colors, attributes=mesh.attributes)
-        textured, stats = textured_result(mesh, views, request.options, progress, cancel)
+        # The mesh comes without normals (the world transform would turn them): the bake computes
+        # them from the winding, which points to the cameras.
+        textured, stats = textured_result(request.mesh, views, request.options, progress, cancel)
         cancel.check()
         return BakeOutcome(textured, encode_png(textured.texture), stats)
 
