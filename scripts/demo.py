@@ -242,7 +242,9 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 raise DemoError(f"the default weights are not in the checkout yet ({DEFAULT_WEIGHTS.relative_to(REPO)}); "
                                 "`scripts/demo.py --weights random` runs every stage with a random network (meaningless mesh)")
         out.mkdir(parents=True, exist_ok=True)
-        extra = ["--method", args.method, "--device", args.device] + (["--weights", args.weights] if args.weights else [])
+        # --weights only for VoRTX: a flag the method does not read is refused (engine/recon/settings.py).
+        extra = ["--method", args.method, "--device", args.device] + (["--weights", args.weights]
+                                                                      if args.weights and args.method == "vortx" else [])
         run_batch(images, blend, ply, extra)
 
         estimated, photo = read_capture_cameras(blend, render, posed_dir)

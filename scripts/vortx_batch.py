@@ -56,7 +56,8 @@ from _extension_dev import ExtensionLoadError, enable, find_extension, mount_che
 # torch), the one source the CLI and the Blender properties share.
 sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
 from engine.poses.camera_height import DEFAULT_CAMERA_HEIGHT_M  # noqa: E402
-from engine.recon.settings import ReconSettings, add_setting_arguments, settings_from_arguments  # noqa: E402
+from engine.recon.settings import (ReconSettings, add_setting_arguments, given_settings,  # noqa: E402
+                                   refuse_ignored_settings, settings_from_arguments)
 
 EXPORT_SUFFIXES = (".glb", ".gltf", ".ply", ".obj")
 REPORT_SUFFIX = ".report.json"
@@ -109,6 +110,7 @@ def parse_arguments(args: Sequence[str]) -> argparse.Namespace:
     args.settings = settings_from_arguments(args)
     try:
         args.settings.validate()
+        refuse_ignored_settings(args.settings, given_settings(args))  # no flag is silently ignored
     except Exception as error:  # engine.errors.VortxError of this checkout's engine
         parser.error(str(error))
     return args

@@ -22,7 +22,8 @@ from ..errors import VortxError
 from ..jobs import TqdmProgress
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import SFM_IF_UNPOSED, PreparedCapture, prepare_capture
-from .settings import ReconSettings, add_setting_arguments, settings_from_arguments
+from .settings import (ReconSettings, add_setting_arguments, given_settings, refuse_ignored_settings,
+                       settings_from_arguments)
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb")  # .glb and .obj are textured (engine/texture), .ply has vertex colours
 
@@ -73,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         raise VortxError(f"--out {out}: the mesh file must end in .ply, .obj or .glb")
     settings = settings_from_args(args)
     settings.validate()
+    refuse_ignored_settings(settings, given_settings(args))  # before the capture loads: an early, clear error
 
     from ..capture import load_capture
     from .driver import reconstruct

@@ -45,3 +45,15 @@ def load_network(weights: Optional[str], seed: int, device: torch.device) -> tup
         path = Path(weights)
     model, config = model_weights.load_weights(path, device)
     return model, config, str(path)
+
+
+def weights_take_stereo(weights: Optional[str]) -> bool:
+    """True when the network `weights` (as in `load_network`) takes stereo depth as an input, read from
+    the file's header only; False when the default weights are not installed (loading says so later)."""
+    if weights == RANDOM:
+        return VortxConfig().stereo_evidence is not None
+    path = Path(model_weights.DEFAULT_WEIGHTS) if weights is None else Path(weights)
+    if weights is None and not path.is_file():
+        return False
+    return model_weights.read_config(path).stereo_evidence is not None
+

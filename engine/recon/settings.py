@@ -42,7 +42,15 @@ BLENDER = "blender"
 ENGINE_ONLY: tuple[str, ...] = ()  # tuning knobs of the engine itself; changed in code, not by users
 
 
-def setting(default: Any, help: str, expose: tuple[str, ...], *, min: Optional[float] = None,
+# Which methods read a setting (`setting(methods=...)`): a flag given for a method that does not read
+# it is refused (`refuse_unused_settings`), never silently ignored. STEREO_EVIDENCE_WEIGHTS stands for
+# "vortx, when its weights take stereo depth as an input" (VortxConfig.stereo_evidence): only then does
+# VoRTX run the stereo depth maps.
+STEREO_EVIDENCE_WEIGHTS = "vortx with stereo-evidence weights"
+
+
+def setting(default: Any, help: str, expose: tuple[str, ...], *, methods: tuple[str, ...] = METHODS,
+            min: Optional[float] = None,
             max: Optional[float] = None, choices: Optional[tuple[str, ...]] = None, flag: Optional[str] = None,
             blender_name: Optional[str] = None, label: Optional[str] = None, unset: Optional[int] = None,
             default_text: Optional[str] = None, metavar: Optional[tuple[str, ...]] = None) -> Any:
@@ -55,8 +63,12 @@ def setting(default: Any, help: str, expose: tuple[str, ...], *, min: Optional[f
     identifier (default: the field name, kept stable for saved .blend files) and its label.
     unset: for an Optional[int] whose None means "automatic", the Blender value that stands for
     None (e.g. 0). default_text: the CLI help's default when the default is not a plain value.
+    methods: the reconstruction methods (METHODS, or STEREO_EVIDENCE_WEIGHTS) that read the setting.
     """
-    metadata = {"help": help, "expose": tuple(expose), "min": min, "max": max, "choices": choices, "flag": flag,
+    unknown = set(methods) - set(METHODS) - {STEREO_EVIDENCE_WEIGHTS}
+    if unknown:
+        raise ValueError(f"setting(methods=...): unknown methods {sorted(unknown)}")
+    metadata = {"help": help, "expose": tuple(expose), "methods": tuple(methods), "min": min, "max": max, "choices": choices, "flag": flag,
                 "blender_name": blender_name, "label": label, "unset": unset, "default_text": default_text,
                 "metavar": metavar}
     if isinstance(default, (list, tuple)):
@@ -72,21 +84,21 @@ class ReconSettings:
         (CLI, BLENDER), choices=METHODS, label="Method")
     weights: Optional[str] = setting(
         None, "weights .safetensors file, or 'random' (seeded random network: tests the pipeline, meaningless mesh)",
-        (CLI,), default_text="the weights shipped with the extension")  # Blender: Weights source + file (reconstruct.py)
+        (CLI,), methods=("vortx",), default_text="the weights shipped with the extension")  # Blender: Weights source + file (reconstruct.py)
     voxel_size: float = setting(
         0.04, "finest voxel edge in metres; the coarser levels are 2x and 4x this (VoRTX was trained at 4 cm)",
         (CLI, BLENDER), min=0.005, max=0.5, label="Voxel Size")
     views: int = setting(
         60, "keyframes fused into each tile (more: better detail, more memory and time)",
-        (CLI, BLENDER), min=1, max=500, blender_name="view_count", label="Views per Tile")
+        (CLI, BLENDER), methods=("vortx",), min=1, max=500, blender_name="view_count", label="Views per Tile")
     tile_size: int = setting(
         96, f"tile width and depth in fine voxels, a multiple of {COARSE_FACTOR} (smaller: less memory per step)",
-        (CLI, BLENDER), min=COARSE_FACTOR, max=512, label="Tile Size")
-    tile_height: int = setting(48, "tile height in fine voxels (the training crop's height)", ENGINE_ONLY)
+        (CLI, BLENDER), methods=("vortx",), min=COARSE_FACTOR, max=512, label="Tile Size")
+    tile_height: int = setting(48, "tile height in fine voxels (the training crop's height)", ENGINE_ONLY, methods=("vortx",))
     device: str = setting("cpu", "where the network runs: cpu, cuda or cuda:<index>", (CLI, BLENDER))
     seed: int = setting(
         0, "seed of the per-tile view sampling (and of random weights); the same seed gives the same mesh",
-        (CLI, BLENDER), min=0)
+        (CLI, BLENDER), methods=("vortx",), min=0)
     keyframe_translation: float = setting(0.1, "metres since the last kept keyframe", ENGINE_ONLY, min=0.0)
     keyframe_angle_deg: float = setting(15.0, "optical-axis angle since the last kept keyframe", ENGINE_ONLY, min=0.0)
     frustum_depth: float = setting(
@@ -99,15 +111,15 @@ class ReconSettings:
         "cannot make it city-sized", (CLI, BLENDER), min=0.5, max=1000.0, metavar=("X", "Y", "Z"))
     # None = the size the weights were trained at (VortxConfig.image_long_side: 640 for the official model).
     image_long_side: Optional[int] = setting(
-        None, "long side in pixels the photos are resized to for the network", (CLI, BLENDER), min=32, max=4096,
+        None, "long side in pixels the photos are resized to for the network", (CLI, BLENDER), methods=("vortx",), min=32, max=4096,
         flag="--image-size", blender_name="image_size", label="Image Size", unset=0,
         default_text="the size the weights were trained at")
     feature_chunk: int = setting(
-        4, "images per 2D CNN call (measured fastest on CPU, platform-notes section 4)", ENGINE_ONLY, min=1)
+        4, "images per 2D CNN call (measured fastest on CPU, platform-notes section 4)", ENGINE_ONLY, methods=("vortx",), min=1)
     fusion_chunk: int = setting(
-        2048, "voxels per fusion call: fusion memory is O(chunk x views^2)", ENGINE_ONLY, min=1)
+        2048, "voxels per fusion call: fusion memory is O(chunk x views^2)", ENGINE_ONLY, methods=("vortx",), min=1)
     fp16_features: bool = setting(
-        True, "cache 2D features as fp16 on the CPU (halves the cache; official does this)", ENGINE_ONLY)
+        True, "cache 2D features as fp16 on the CPU (halves the cache; official does this)", ENGINE_ONLY, methods=("vortx",))
     colour_views: int = setting(
         40, "keyframes (evenly spaced) that colour the mesh vertices; 0 leaves the mesh grey",
         (CLI, BLENDER), min=0, max=1000, label="Colour Views")
@@ -115,23 +127,23 @@ class ReconSettings:
     # Plane-sweep stereo (engine/stereo), the 'stereo' method's depth maps.
     stereo_image_size: int = setting(
         StereoOptions.long_side, "long side in pixels of the photos matched by stereo (larger: finer depth, ~4x the time per 2x)",
-        (CLI, BLENDER), min=32, max=2048, label="Stereo Image Size")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=32, max=2048, label="Stereo Image Size")
     stereo_views: int = setting(
         StereoOptions.max_references, "keyframes that get a stereo depth map (evenly spaced when there are more)",
-        (CLI, BLENDER), min=1, max=2000, label="Stereo Views")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=1, max=2000, label="Stereo Views")
     stereo_planes: int = setting(
         StereoOptions.planes, "depth hypotheses per pixel, uniform in inverse depth (a finer second sweep refines each pixel)",
-        (CLI, BLENDER), min=8, max=512, label="Depth Planes")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=8, max=512, label="Depth Planes")
     stereo_sources: int = setting(
         StereoOptions.sources, "photos each depth map is matched against (the best half of them vote at each pixel)",
-        (CLI, BLENDER), min=1, max=16, label="Source Views")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=1, max=16, label="Source Views")
     stereo_min_ncc: float = setting(
         StereoOptions.min_ncc, "minimum matching score (normalised cross-correlation) for a depth to be kept",
-        (CLI, BLENDER), min=-1.0, max=0.99, flag="--stereo-min-ncc", label="Min Match Score")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=-1.0, max=0.99, flag="--stereo-min-ncc", label="Min Match Score")
     stereo_consistency: int = setting(
         StereoOptions.consistency_views, "keep a depth only if this many other depth maps agree within 2 percent (0 = off; fusion already "
         "filters most outliers, and a strict check loses more surface than noise)",
-        (CLI, BLENDER), min=0, max=10, label="Consistency Views")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=0, max=10, label="Consistency Views")
 
     # The textured result (engine/texture): GLB / OBJ files, Blender's Bake Texture, the VR preset.
     texture_size: int = setting(
@@ -256,7 +268,63 @@ def add_setting_arguments(parser: argparse.ArgumentParser, only: Optional[tuple[
                 options["choices"] = meta["choices"]  # argparse shows them as {a,b}
             else:
                 options["metavar"] = cli_flag(f)[2:].upper().replace("-", "_")
+        options["action"] = _recording_action(options.get("action", "store"))
         parser.add_argument(cli_flag(f), **options)
+
+
+GIVEN_SETTINGS = "given_settings"  # the Namespace attribute listing the setting flags on the command line
+
+
+def _recording_action(action: Any) -> type:
+    """`action` (an argparse action class or "store") that also notes its field in the namespace's
+    GIVEN_SETTINGS, so an explicit flag can be told from a default (even one given at its default value)."""
+    base = argparse._StoreAction if action == "store" else action
+
+    class Recorded(base):  # type: ignore[misc, valid-type]
+        def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                     option_string: Optional[str] = None) -> None:
+            super().__call__(parser, namespace, values, option_string)
+            given = set(getattr(namespace, GIVEN_SETTINGS, ()))
+            setattr(namespace, GIVEN_SETTINGS, given | {self.dest})
+
+    return Recorded
+
+
+def given_settings(args: argparse.Namespace) -> set[str]:
+    """The ReconSettings fields whose flags were on the command line (see `add_setting_arguments`)."""
+    return set(getattr(args, GIVEN_SETTINGS, ()))
+
+
+def methods_using(f: Field, stereo_weights: bool = False) -> tuple[str, ...]:
+    """The methods that read field `f`; with `stereo_weights` (VoRTX weights that take stereo depth)
+    the stereo knobs count as read by 'vortx' too."""
+    methods = f.metadata["methods"]
+    extra = ("vortx",) if stereo_weights and STEREO_EVIDENCE_WEIGHTS in methods else ()
+    return tuple(m for m in METHODS if m in methods or m in extra)
+
+
+def refuse_unused_settings(method: str, given: set[str], stereo_weights: bool = False,
+                           name_of: Any = None) -> None:
+    """Raise VortxError when a setting in `given` (field names the user set) is not read by `method`,
+    naming the option, the method that uses it and what to do: an option is never silently ignored.
+
+    stereo_weights: the chosen VoRTX weights take stereo depth (then VoRTX reads the stereo knobs).
+    name_of: how the entry point names a field (default: its CLI flag).
+    """
+    name_of = name_of or cli_flag
+    unused = [f for f in setting_fields() if f.name in given and method not in methods_using(f, stereo_weights)]
+    if not unused:
+        return
+    reasons = []
+    for f in unused:
+        users = methods_using(f)
+        where = f"--method {' / '.join(users)}" if users else "no method"
+        if STEREO_EVIDENCE_WEIGHTS in f.metadata["methods"] and method == "vortx":
+            where += " (and VoRTX weights that take stereo depth; these weights do not)"
+        reasons.append(f"{name_of(f)} is used only by {where}")
+    raise VortxError(f"--method {method} does not use {', '.join(name_of(f) for f in unused)}: "
+                     f"{'; '.join(reasons)}. Leave {'it' if len(unused) == 1 else 'them'} out, or choose the method "
+                     f"that uses {'it' if len(unused) == 1 else 'them'}")
 
 
 def settings_from_arguments(args: argparse.Namespace, **overrides: Any) -> ReconSettings:
@@ -267,3 +335,16 @@ def settings_from_arguments(args: argparse.Namespace, **overrides: Any) -> Recon
             values[f.name] = tuple(values[f.name])
     values.update(overrides)
     return ReconSettings(**values)
+
+
+def refuse_ignored_settings(settings: ReconSettings, given: set[str], name_of: Any = None) -> None:
+    """`refuse_unused_settings` for a run's settings: every setting named in `given` (set by the user)
+    must be read by `settings.method`. VoRTX reads the stereo knobs only when its weights take stereo
+    depth, so only then (a stereo knob given to vortx) is the weights file's header read."""
+    stereo_knobs = {f.name for f in setting_fields() if STEREO_EVIDENCE_WEIGHTS in f.metadata["methods"]}
+    stereo_weights = False
+    if settings.method == "vortx" and given & stereo_knobs:
+        from .network import weights_take_stereo  # torch: imported only when it matters
+
+        stereo_weights = weights_take_stereo(settings.weights)
+    refuse_unused_settings(settings.method, given, stereo_weights, name_of)

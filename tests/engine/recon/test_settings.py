@@ -133,3 +133,83 @@ def test_scene_settings_round_trip(blender, empty_scene) -> None:
     recon.write_scene_settings(empty_scene.vortx, blender.engine.recon.ReconSettings())
     assert empty_scene.vortx.image_size == 0  # None ("the weights' own size") is 0 in the panel
     assert recon.recon_settings_from_scene(empty_scene.vortx).image_long_side is None
+
+
+# --- options are never ignored: a flag the chosen method does not read is refused -------------------
+
+def _flag_at_default(f) -> list[str]:
+    """Field `f`'s CLI flag with a valid value written out (its default; 'random' weights; the lower
+    limit for an automatic None): a given flag counts as given whatever its value."""
+    from engine.recon.settings import value_type
+
+    value = field_default(f)
+    if value_type(f) is bool:
+        return [cli_flag(f) if value else "--no-" + cli_flag(f)[2:]]
+    if f.name == "weights":
+        value = "random"
+    elif value is None:
+        value = f.metadata["min"]
+    values = value if isinstance(value, tuple) else (value,)
+    return [cli_flag(f), *(str(v) for v in values)]
+
+
+def _stereo_weights(tmp_path) -> str:
+    """A weights file whose network takes stereo depth (a seeded random init is enough: only its header is read)."""
+    import torch
+
+    from engine.model.config import StereoEvidenceConfig, VortxConfig
+    from engine.model.vortx import VortxNet
+    from engine.model.weights import save_weights
+
+    torch.manual_seed(0)
+    config = VortxConfig(stereo_evidence=StereoEvidenceConfig())
+    return str(save_weights(VortxNet(config), config, tmp_path / "stereo.safetensors"))
+
+
+@pytest.mark.parametrize("method", ["stereo", "vortx", "vortx with stereo weights"])
+def test_each_method_refuses_every_flag_it_does_not_read(method: str, tmp_path, capsys) -> None:
+    """Walks every CLI setting (a new one is covered as soon as it exists): each is either read by the
+    method, so `engine reconstruct` goes on to load the capture, or refused before anything runs with
+    a message naming the flag and the method that reads it; scripts/vortx_batch.py says the same."""
+    from engine.__main__ import main
+    from engine.recon.settings import methods_using
+
+    sys.path.insert(0, str(REPO / "scripts"))
+    import vortx_batch
+
+    name, extra, stereo_weights = method, [], False
+    if method == "vortx with stereo weights":
+        name, stereo_weights = "vortx", True
+        extra = ["--weights", _stereo_weights(tmp_path)]
+    missing = tmp_path / "no_capture_here"
+    checked = {"read": 0, "refused": 0}
+    for f in setting_fields(CLI):
+        if f.name == "method" or (extra and f.name == "weights"):
+            continue
+        flags = ["--method", name, *extra, *_flag_at_default(f)]
+        assert main(["reconstruct", str(missing), "--out", str(tmp_path / "room.ply"), *flags]) == 1
+        err = capsys.readouterr().err
+        if name in methods_using(f, stereo_weights):
+            assert "capture not found" in err, f"{cli_flag(f)} with --method {name}: {err}"
+            vortx_batch.parse_arguments([str(missing), "--out", str(tmp_path / "room.blend"), *flags])
+            checked["read"] += 1
+            continue
+        users = " / ".join(methods_using(f))
+        assert err.startswith(f"error: --method {name} does not use {cli_flag(f)}: "), err
+        assert f"{cli_flag(f)} is used only by --method {users}" in err and "Leave it out" in err
+        with pytest.raises(SystemExit):
+            vortx_batch.parse_arguments([str(missing), "--out", str(tmp_path / "room.blend"), *flags])
+        assert f"does not use {cli_flag(f)}" in capsys.readouterr().err
+        checked["refused"] += 1
+    # Each method reads some flags and not others (--weights, --views ... are VoRTX's; the stereo knobs stereo's).
+    assert checked["read"] >= 5 and (checked["refused"] >= 1 or stereo_weights), checked
+
+
+def test_the_refusal_names_every_ignored_flag_at_once(capsys) -> None:
+    from engine.__main__ import main
+
+    assert main(["reconstruct", "nowhere", "--out", "room.ply", "--weights", "w.safetensors", "--views", "8",
+                 "--voxel-size", "0.05"]) == 1
+    err = capsys.readouterr().err
+    assert "--method stereo does not use --weights, --views:" in err and "Leave them out" in err
+    assert "--voxel-size" not in err  # stereo reads the voxel size
