@@ -14,6 +14,7 @@ import bpy
 
 from . import dependencies, jobs
 from .dependencies import InstallResult, ModuleStatus, Requirement
+from .dependencies import canonical_name as canonical
 from .job_operator import JobOperatorMixin
 from .jobs import Job, JobFunction
 
@@ -47,6 +48,19 @@ def _wrapped_labels(layout: Any, text: str, width: int = 90) -> None:
         col.label(text=line)
 
 
+def install_what(pins_apply: Optional[bool] = None) -> str:
+    """What the Install button installs: the tested pins, or on another Python the nearest that fit."""
+    if pins_apply if pins_apply is not None else dependencies.pins_apply_here():
+        return "pinned packages"
+    return f"packages (tested versions where Python {dependencies.python_text(_python_version())} has them)"
+
+
+def _python_version() -> tuple:
+    import sys
+
+    return tuple(sys.version_info[:2])
+
+
 def draw_dependencies(layout: Any, statuses: Sequence[ModuleStatus], online: bool, job: Optional[Job], folder: Path) -> None:
     box = layout.box()
     box.label(text="Python packages for the VoRTX engine", icon="SCRIPTPLUGINS")
@@ -62,7 +76,7 @@ def draw_dependencies(layout: Any, statuses: Sequence[ModuleStatus], online: boo
     elif online:
         row = box.row()
         row.operator(VORTX_OT_install_dependencies.bl_idname, icon="IMPORT")
-        box.label(text=f"Installs {len(todo)} pinned packages (and their dependencies, never numpy) into:")
+        box.label(text=f"Installs {len(todo)} {install_what()} (and their dependencies, never numpy) into:")
         _wrapped_labels(box, str(folder))
     else:
         _wrapped_labels(box, offline_text(statuses, folder))
@@ -113,13 +127,16 @@ class VORTX_OT_install_dependencies(JobOperatorMixin, bpy.types.Operator):
         # A module imported before the install keeps its old version until Blender restarts.
         stale = [s.requirement.distribution for s in statuses if s.requirement.module in sys.modules and s.needs_install]
         still = [s.requirement.distribution for s in statuses if s.missing]
-        message = f"Installed {len(result.packages)} packages into {result.target}"
-        if still:
-            self.report({"ERROR"}, f"{message}, but {', '.join(still)} still cannot be found")
+        message = result.summary()
+        left_out = {canonical(m.distribution) for m in result.not_installed}
+        unexplained = [name for name in still if canonical(name) not in left_out]
+        if unexplained:
+            self.report({"ERROR"}, f"{message}; but {', '.join(unexplained)} still cannot be found")
             return {"CANCELLED"}
         if stale:
             message += f"; restart Blender to use the new {', '.join(stale)}"
-        self.report({"INFO"}, message)
+        # Packages no release of which fits this Blender were said by name and reason in the message.
+        self.report({"WARNING"} if result.not_installed else {"INFO"}, message)
         return {"FINISHED"}
 
 

@@ -162,11 +162,18 @@ FAKE_PYTHON = textwrap.dedent(
     assert args[:3] == ["-m", "pip", "install"], args
     with open(os.environ["FAKE_PIP_LOG"], "a") as log:
         log.write(json.dumps(args) + "\\n")
-    specs = [a for a in args if "==" in a]
+    specs = args[args.index("off") + 1:]  # after PIP_QUIET_FLAGS: what is asked for, pinned or not
     for spec in specs:
         print("Collecting " + spec, flush=True)
+    # FAKE_PIP_NO_WHEEL: specs this "index" has no wheel for, answered in pip's own words.
+    refused = [s for s in specs if s in os.environ.get("FAKE_PIP_NO_WHEEL", "").split(",")]
+    if "--dry-run" in args and refused:
+        print("ERROR: Could not find a version that satisfies the requirement " + refused[0] + " (from versions: none)")
+        print("ERROR: No matching distribution found for " + refused[0], flush=True)
+        sys.exit(1)
     if "--dry-run" in args:
-        report = {{"install": [{{"metadata": {{"name": n, "version": v}}}} for n, v in (s.split("==") for s in specs)]}}
+        versions = [s.split("==") if "==" in s else [s, "9.9.9"] for s in specs]
+        report = {{"install": [{{"metadata": {{"name": n, "version": v}}}} for n, v in versions]}}
         report["install"].append({{"metadata": {{"name": "numpy", "version": "1.26.4"}}}})
         report["install"].append({{"metadata": {{"name": "sympy", "version": "1.14.0"}}}})
         Path(args[args.index("--report") + 1]).write_text(json.dumps(report))
@@ -177,6 +184,7 @@ FAKE_PYTHON = textwrap.dedent(
         print("ERROR: No matching distribution found for torch==2.15.0", flush=True)
         sys.exit(1)
     target = Path(args[args.index("--target") + 1])
+    assert all("==" in s for s in specs), specs  # the install step gets the resolved versions
     for spec in specs:
         (target / spec.split("==")[0]).mkdir(parents=True, exist_ok=True)
     print("Successfully installed " + " ".join(specs), flush=True)
@@ -268,3 +276,123 @@ def test_preferences_draw_missing_packages(blender, deps, tmp_path: Path) -> Non
     calls: list = []
     preferences.draw_dependencies(RecordingLayout(calls), [present], False, None, tmp_path)
     assert ("label", {"text": "All packages found", "icon": "INFO"}) in calls
+
+
+# --- the version choice on a Python other than the tested one (Debian's Blender: 3.13, numpy 2.2) -----
+
+# pip 25's own output, as it prints it (captured from real runs against PyPI).
+PIP_NO_WHEEL = [
+    "Collecting scikit-image==0.24.0",
+    "ERROR: Could not find a version that satisfies the requirement scikit-image==0.24.0 (from versions: 0.25.0, 0.25.2, 0.26.0)",
+    "ERROR: No matching distribution found for scikit-image==0.24.0",
+]
+PIP_CONFLICT = [
+    "ERROR: Cannot install scikit-image because these package versions have conflicting dependencies.",
+    "",
+    "The conflict is caused by:",
+    "    scikit-image 0.26.0 depends on numpy>=2.3",
+    "    The user requested (constraint) numpy==2.2.4",
+    "",
+    "To fix this you could try to:",
+    "ERROR: ResolutionImpossible: for help visit https://pip.pypa.io/en/latest/topics/dependency-resolution/",
+]
+PIP_OFFLINE = [
+    "WARNING: Retrying (Retry(total=4)) after connection broken by 'NewConnectionError': /simple/torch/",
+    "ERROR: Could not find a version that satisfies the requirement torch==2.15.0 (from versions: none)",
+    "ERROR: No matching distribution found for torch==2.15.0",
+]
+
+
+def _requirements(deps):
+    return [deps.Requirement("torch", "torch", "2.15.0"), deps.Requirement("skimage", "scikit-image", "0.24.0")]
+
+
+def test_tested_python_is_the_one_the_suite_runs(deps) -> None:
+    # The pins are the .venv's freeze; the suite runs in that .venv.
+    assert deps.TESTED_PYTHON == tuple(sys.version_info[:2]) and deps.pins_apply_here()
+
+
+def test_first_attempt_keeps_the_tested_set_only_on_the_tested_python(deps) -> None:
+    pins = {"torch": "2.15.0", "scikit-image": "0.24.0", "numpy": "1.26.4", "tifffile": "2026.3.3"}
+    tested = deps.first_attempt(_requirements(deps), pins, deps.TESTED_PYTHON, "1.26.4")
+    assert tested.specs() == ["torch==2.15.0", "scikit-image==0.24.0"]
+    assert tested.constraints_text().splitlines() == ["tifffile==2026.3.3", "numpy==1.26.4"]
+    debian = deps.first_attempt(_requirements(deps), pins, (3, 13), "2.2.4")
+    assert debian.specs() == ["torch==2.15.0", "scikit-image==0.24.0"]  # the direct pins are still tried first
+    assert debian.constraints_text().splitlines() == ["numpy==2.2.4"]  # the 3.11 freeze is not; numpy held
+
+
+def test_pip_failures_are_read_as_resolution_or_not(deps) -> None:
+    missing = deps.parse_resolution_failure(PIP_NO_WHEEL)
+    assert missing.blamed == ("scikit-image",) and missing.no_wheel
+    conflict = deps.parse_resolution_failure(PIP_CONFLICT)
+    assert set(conflict.blamed) == {"scikit-image", "numpy"} and not conflict.no_wheel
+    assert "depends on numpy>=2.3" in conflict.pip_says
+    assert deps.parse_resolution_failure(["ERROR: Could not install packages due to an OSError: [Errno 28] No space left"]) is None
+    assert deps.parse_resolution_failure(PIP_OFFLINE) is None  # offline: no version is to blame
+
+
+def test_a_pin_without_a_wheel_is_loosened_then_an_unfit_package_left_out_in_plain_words(deps) -> None:
+    attempt = deps.first_attempt(_requirements(deps), {}, (3, 13), "2.2.4")
+    loosened, dropped, why = deps.relax(attempt, deps.parse_resolution_failure(PIP_NO_WHEEL), (3, 13))
+    assert loosened.specs() == ["torch==2.15.0", "scikit-image"] and dropped == []
+    assert why == {"scikit-image": "0.24.0 has no wheel for Python 3.13"}
+    # Even the newest scikit-image needs another numpy than Blender's: it is left out, torch stays.
+    left, dropped, why = deps.relax(loosened, deps.parse_resolution_failure(PIP_CONFLICT), (3, 13))
+    assert left.specs() == ["torch==2.15.0"] and why == {}
+    (skimage,) = dropped
+    assert skimage.distribution == "scikit-image"
+    assert skimage.reason == (
+        "scikit-image could not be installed: every release of it for Python 3.13 needs another numpy than "
+        "Blender's numpy 2.2.4, and a second numpy would break Blender's own modules; Reconstruct (the mesh "
+        "extraction) will not work without it"
+    )
+    # A transitive tested pin pip refuses is dropped, not the package that needs it.
+    tested = deps.first_attempt(_requirements(deps), {"tifffile": "2026.3.3"}, deps.TESTED_PYTHON, "1.26.4")
+    failure = deps.parse_resolution_failure(["ERROR: No matching distribution found for tifffile==2026.3.3"])
+    after, dropped, why = deps.relax(tested, failure, deps.TESTED_PYTHON)
+    assert after.specs() == tested.specs() and after.constraints == () and dropped == []
+
+
+def test_untested_python_accepts_other_versions_but_not_missing_ones(deps) -> None:
+    requirement = deps.Requirement("skimage", "scikit-image", "0.24.0")
+    other = deps.ModuleStatus(requirement, "0.25.2", pins_apply=False)
+    assert not other.needs_install
+    assert other.describe() == f"scikit-image 0.25.2 (tested with 0.24.0 on Python {deps.python_text(deps.TESTED_PYTHON)})"
+    assert deps.ModuleStatus(requirement, "0.25.2").needs_install  # on the tested Python the pin rules
+    assert deps.ModuleStatus(requirement, None, pins_apply=False).needs_install
+
+
+def test_install_on_untested_python_loosens_and_leaves_out(blender, deps, fake_python: Path, tmp_path: Path, monkeypatch) -> None:
+    # The fake index has no scikit-image 0.24.0 (as PyPI for 3.13) and no pycolmap at all.
+    monkeypatch.setenv("FAKE_PIP_NO_WHEEL", "scikit-image==0.24.0,pycolmap==4.2.1,pycolmap")
+    todo = _requirements(deps) + [deps.Requirement("pycolmap", "pycolmap", "4.2.1")]
+    target = tmp_path / "target"
+    result = deps.install(str(fake_python), target, todo, python_version=(3, 13))
+    resolves = [c for c in _calls(tmp_path) if "--dry-run" in c]
+    assert [r[r.index("off") + 1:] for r in resolves] == [
+        ["torch==2.15.0", "scikit-image==0.24.0", "pycolmap==4.2.1"],
+        ["torch==2.15.0", "scikit-image", "pycolmap==4.2.1"],
+        ["torch==2.15.0", "scikit-image", "pycolmap"],
+        ["torch==2.15.0", "scikit-image"],
+    ]
+    assert result.packages == ["torch==2.15.0", "scikit-image==9.9.9", "sympy==1.14.0"]
+    assert sorted(p.name for p in target.iterdir()) == ["scikit-image", "sympy", "torch"]
+    assert [m.distribution for m in result.not_installed] == ["pycolmap"]
+    summary = result.summary()
+    assert "scikit-image 9.9.9 instead of the tested 0.24.0 (0.24.0 has no wheel for Python 3.13)" in summary
+    assert ("pycolmap could not be installed: no release of it has a ready-built package (wheel) for Python 3.13 "
+            "on this system; Estimate Poses and Refine Poses will not work without it") in summary
+
+
+def test_install_without_network_says_pips_error_and_loosens_nothing(blender, deps, tmp_path: Path, monkeypatch) -> None:
+    calls = []
+
+    def offline(argv, stage, *args, **kwargs):
+        calls.append(argv)
+        raise deps.PipFailed("pip failed (exit code 1): ERROR: No matching distribution found for torch==2.15.0", PIP_OFFLINE)
+
+    monkeypatch.setattr(deps, "run_pip", offline)
+    with pytest.raises(deps.DependencyError, match=r"pip could not reach the package index \(pypi.org\).*NewConnectionError"):
+        deps.install("/py", tmp_path / "t", _requirements(deps), python_version=(3, 13))
+    assert len(calls) == 1
