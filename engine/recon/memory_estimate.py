@@ -15,11 +15,16 @@ Voxel counts are the uncertain part: they depend on what the weights keep. Two m
 `keep_fractions` (fraction of voxels with logit > 0 at coarse and medium, e.g. measured with random
 weights) and `surface_band_voxels` (trained weights keep a band around the surfaces as thick as the
 training targets: 3 coarse voxels = 0.48 m, 4 medium voxels = 0.32 m at the default 4 cm).
+
+`estimate_capture_memory` applies the model to one capture under a run's settings and adds the
+Blender process and the VR texture bake: the memory a batch run declares per capture on a Ray
+cluster (scripts/vortx_batch_ray.py).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any, Optional
 
 import numpy as np
 
@@ -100,3 +105,62 @@ def estimate_memory(
         components[name] = int(value)
     components["total"] = int(baseline + cache + max(per_level))
     return MemoryEstimate(tuple(int(v) for v in voxels), components)  # type: ignore[arg-type]
+
+
+# --- one capture's batch run (scripts/vortx_batch.py --ray declares it per task) ---------------------
+
+# bpy and the mounted extension beside the engine's BASELINE_BYTES: the batch process on the 8-frame
+# test capture (160 x 120, 16 cm, 3 views) peaked at 1.43-1.50 GB RSS, while the estimate above puts
+# that reconstruction at ~0.7 GB.
+BLENDER_PROCESS_BYTES = 800 * 2**20
+# The VR preset's bake (README, texture bench): 1.9 GB at 4096 px and 6.7 GB at 8192 px on the demo
+# room, +384 MB over the start at 2048 px: 90-115 bytes per texel, whatever the room.
+TEXTURE_BYTES_PER_TEXEL = 115
+DEFAULT_IMAGE_LONG_SIDE = 640  # VortxConfig.image_long_side of the shipped (official) weights
+
+
+def estimate_capture_memory(capture: Any, settings: Any, texture: bool = False,
+                            camera_height: Optional[float] = None) -> MemoryEstimate:
+    """Peak bytes of one capture's batch run (Blender process, reconstruction, and with `texture` the
+    VR preset's bake), planned as Reconstruct plans it, before anything heavy runs.
+
+    A posed capture is put in metres and Z up (`prepare_capture` without structure from motion) and
+    its keyframes and scene bounds are the reconstruction's own; an unposed one (structure from
+    motion will pose it) counts every frame as a keyframe and the whole `max_room_size` box, the
+    most it can become. Voxels follow the trained weights' surface band (`surface_band_voxels`).
+    The stereo method is costed as VoRTX: the bench holds its peak within VoRTX's + 1 GiB on the
+    same capture (measured +10 MB).
+    """
+    from ..geometry.view_selection import select_keyframes
+    from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
+    from ..poses.prepare import SFM_NEVER, prepare_capture
+    from ..capture.images import resized_size
+    from .scene_bounds import scene_bounds
+
+    frames = capture.frames
+    if not frames:
+        raise ValueError(f"{capture.root}: a capture without frames has no memory estimate")
+    if capture.posed_frames and all(f.K is not None for f in capture.posed_frames):
+        height = DEFAULT_CAMERA_HEIGHT_M if camera_height is None else camera_height
+        prepared = prepare_capture(capture, camera_height=height, sfm=SFM_NEVER).capture
+        posed = prepared.posed_frames
+        poses = np.stack([f.pose for f in posed]).astype(np.float64)
+        kept = select_keyframes(poses, settings.keyframe_translation, settings.keyframe_angle_deg)
+        Ks = np.stack([posed[int(k)].K for k in kept]).astype(np.float64)
+        sizes = np.array([[posed[int(k)].width, posed[int(k)].height] for k in kept])
+        bounds = scene_bounds(Ks, poses[kept], sizes, settings.frustum_depth, settings.max_room_size)
+        room, keyframes = tuple(float(s) for s in bounds.size), len(kept)
+    else:
+        room, keyframes = tuple(float(s) for s in settings.max_room_size), len(frames)
+    coarse = coarse_voxels(room, settings.voxel_size)  # type: ignore[arg-type]
+    voxels = surface_band_voxels(coarse, box_room_surface_area(room), settings.voxel_size)  # type: ignore[arg-type]
+    width, height_px = frames[0].width, frames[0].height
+    image = resized_size(width, height_px, settings.image_long_side or DEFAULT_IMAGE_LONG_SIDE)
+    estimate = estimate_memory(voxels, keyframes, image, min(settings.views, keyframes), settings.fusion_chunk,
+                               settings.fp16_features)
+    bake = BASELINE_BYTES + TEXTURE_BYTES_PER_TEXEL * settings.texture_size ** 2 if texture else 0
+    estimate.components["reconstruction"] = estimate.components["total"]
+    estimate.components["texture_bake"] = bake
+    estimate.components["blender"] = BLENDER_PROCESS_BYTES
+    estimate.components["total"] = BLENDER_PROCESS_BYTES + max(estimate.components["reconstruction"], bake)
+    return estimate
