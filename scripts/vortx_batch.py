@@ -25,6 +25,10 @@ came from (given, refined, structure from motion) and the scale (source and how 
 seconds per step, mesh size, the texture bake's numbers (with --vr), every warning, and the error with
 the step it happened in.
 
+With --ray ADDRESS (or --ray local), each capture runs as a task on a Ray cluster, in a process of
+its own as above, the memory its capture needs declared, a failed one run once more
+(scripts/vortx_batch_ray.py); the reports are the same, with where it ran under "cluster".
+
 Prints one line per finished stage; on failure prints `error: <reason>` and exits with status 1
 (after finishing the other captures; 2 for bad arguments), also under `blender --background`
 (sys.exit ends Blender with that status; --python-exit-code covers anything that escapes). The
@@ -75,7 +79,7 @@ def script_arguments(argv: Sequence[str]) -> list[str]:
     return argv[argv.index("--") + 1:] if "--" in argv else argv[1:]
 
 
-def parse_arguments(args: Sequence[str]) -> argparse.Namespace:
+def argument_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="vortx_batch.py", description="Reconstruct rooms from photos into .blend files (and mesh files), with a JSON "
                                            "report per capture.",
@@ -96,7 +100,19 @@ def parse_arguments(args: Sequence[str]) -> argparse.Namespace:
     parser.add_argument("--vr", action="store_true",
                         help="the VR preset: after Reconstruct, Bake Texture (decimated to --face-budget faces, a "
                              "--texture-size texture from the photos); --export .glb or .obj then carries the texture")
+    parser.add_argument("--ray", metavar="ADDRESS",
+                        help="run the captures as tasks on the Ray cluster at ADDRESS (HOST:PORT, from `ray start --head`), "
+                             "or on one started on this machine for the run ('local'); see scripts/vortx_batch_ray.py")
+    parser.add_argument("--ray-cpus", type=float, default=1.0,
+                        help="with --ray: CPU cores each capture's task reserves (its torch threads follow) (default %(default)s)")
+    return parser
+
+
+def parse_arguments(args: Sequence[str]) -> argparse.Namespace:
+    parser = argument_parser()
     args = parser.parse_args(list(args))
+    if not args.ray_cpus > 0:
+        parser.error(f"--ray-cpus {args.ray_cpus}: give a positive number of cores")
     args.single = args.out.suffix.lower() == ".blend"
     if args.single and len(args.captures) > 1:
         parser.error(f"--out {args.out}: {len(args.captures)} captures need an output folder, not one .blend file")
@@ -481,6 +497,12 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             captures = args.captures if args.single else expand_captures(
                 args.captures, args.out, detect.detect_format, importlib.import_module(f"{engine}.errors").CaptureError,
                 video.VIDEO_SUFFIXES + (".json",))
+            if args.ray is not None:
+                from vortx_batch_ray import run_on_ray  # imports ray; nothing else needs it
+
+                return run_on_ray(args, argument_parser(), plan_jobs(args, captures), addon.engine,
+                                  lambda job: CaptureReport(capture=str(job.capture.absolute()), settings=asdict(args.settings)),
+                                  Path(__file__), bpy.app.binary_path)
             return run_all(args, addon, plan_jobs(args, captures))
     except ExtensionLoadError as error:
         return run_all(args, None, plan_jobs(args, args.captures), load_error=str(error))

@@ -1,0 +1,112 @@
+"""scripts/vortx_batch.py --ray: the captures of a batch as Ray tasks, one process per capture.
+
+The cluster test starts a two-machine Ray cluster on this machine (ray.cluster_utils.Cluster: a head
+and a worker node, one core and 2 GiB of memory each) and runs the batch script against its address
+as a user would, with two tiny posed captures and one whose photos are all unreadable: the good ones
+are reconstructed, the bad one is run twice and then reported, and the exit status is 1."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from conftest import REPO
+from fixtures_capture import intrinsics, ring_poses, write_scannet
+
+BATCH = REPO / "scripts" / "vortx_batch.py"
+# tests/scripts/test_vortx_batch.py's tiny settings: 16 cm voxels, 3 views, 160 px, a 2 m room.
+TINY = ["--method", "vortx", "--weights", "random", "--voxel-size", "0.16", "--tile-size", "8", "--views", "3", "--image-size", "160",
+        "--colour-views", "3", "--max-room-size", "2", "2", "2"]
+NODE_MEMORY = 2 * 2**30  # per node: room for one tiny capture (~1.5 GB declared) at a time
+
+
+def test_each_capture_runs_the_batch_script_with_the_users_options() -> None:
+    """The command of one capture's task is the batch script on that capture alone, with --out and
+    --export made its own and every other option repeated: parsed back, the same run."""
+    from vortx_batch import argument_parser, parse_arguments, plan_jobs, script_arguments
+    from vortx_batch_ray import capture_command, forwarded_options, interpreter_command
+
+    args = parse_arguments(["rooms", "--out", "out", "--export", ".ply", "--ray", "local", "--ray-cpus", "2", *TINY,
+                            "--vr", "--camera-height", "1.3"])
+    (job,) = plan_jobs(args, [Path("rooms/kitchen")])
+    command = capture_command(interpreter_command(BATCH), forwarded_options(argument_parser(), args), job)
+    assert command[:2] == [sys.executable, str(BATCH)]
+    assert "--ray" not in command and "--ray-cpus" not in command
+    again = parse_arguments(script_arguments(command[1:]))
+    assert again.captures == [Path("rooms/kitchen").absolute()] and again.single
+    assert again.out == (Path("out") / "kitchen.blend").absolute() and again.export == (Path("out") / "kitchen.ply").absolute()
+    assert again.settings == args.settings and again.vr and again.camera_height == 1.3 and again.ray is None
+    assert "--views" in command and "--seed" not in command  # options left at their default are not repeated
+
+    # Under Blender the capture runs in Blender again, its arguments after `--`.
+    blender = capture_command(interpreter_command(BATCH, "/opt/blender/blender"), [], job)
+    assert blender[:6] == ["/opt/blender/blender", "--background", "--python-exit-code", "1", "--python", str(BATCH)]
+    assert parse_arguments(script_arguments(blender)).out == again.out
+
+
+def test_a_capture_process_that_died_without_a_report_says_so() -> None:
+    from vortx_batch_ray import attempt_error
+
+    killed = {"returncode": -9, "report": None, "output_tail": "vortx [3/4] reconstruct: ...\n", "error": None}
+    assert attempt_error(killed) == ("the capture's process exited with status -9 and wrote no report "
+                                     "(vortx [3/4] reconstruct: ...)")
+    done = {"returncode": 0, "report": json.dumps({"status": "ok", "error": None}), "output_tail": "", "error": None}
+    assert attempt_error(done) is None
+
+
+@pytest.fixture(scope="module")
+def rooms(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("ray") / "rooms"
+    for name in ("kitchen", "hall"):
+        write_scannet(folder / name, ring_poses(8, radius=1.0), intrinsics(100.0, 160, 120), (160, 120), depth=False)
+    (folder / "broken").mkdir()
+    for i in range(3):
+        (folder / "broken" / f"{i}.jpg").write_bytes(b"not a photo")
+    return folder
+
+
+@pytest.mark.slow
+def test_three_captures_on_a_two_machine_cluster(rooms: Path, tmp_path: Path, monkeypatch) -> None:
+    from ray.cluster_utils import Cluster
+
+    # The nodes' processes start the captures' processes: they must inherit a private Blender profile.
+    monkeypatch.setenv("BLENDER_USER_RESOURCES", str(tmp_path / "blender-user"))
+    node = {"num_cpus": 1, "memory": NODE_MEMORY, "object_store_memory": 80 * 2**20}
+    cluster = Cluster(initialize_head=True, head_node_args={**node, "include_dashboard": False})
+    try:
+        cluster.add_node(**node)
+        cluster.wait_for_nodes()
+        out = tmp_path / "out"
+        run = subprocess.run([sys.executable, str(BATCH), str(rooms), "--out", str(out), "--export", ".ply", "--ray",
+                              cluster.address, *TINY], capture_output=True, text=True, timeout=400, cwd=tmp_path)
+        node_ids = {n.node_id for n in [cluster.head_node, *cluster.worker_nodes]}
+    finally:
+        cluster.shutdown()
+    assert run.returncode == 1, run.stdout[-3000:] + run.stderr[-3000:]
+    assert f"vortx capture {rooms / 'broken'} failed (attempt 1 of 2)" in run.stdout
+    assert "vortx batch: 2 of 3 captures reconstructed; failed: " in run.stdout
+    assert f"error: {rooms / 'broken'}: " in run.stderr
+
+    assert sorted(p.name for p in out.iterdir()) == ["broken.report.json", "hall.blend", "hall.ply", "hall.report.json",
+                                                     "kitchen.blend", "kitchen.ply", "kitchen.report.json"]
+    for name in ("kitchen", "hall"):
+        report = json.loads((out / f"{name}.report.json").read_text())
+        assert report["status"] == "ok" and report["blend"] == str((out / f"{name}.blend").resolve())
+        assert report["frames"]["used"] == 8 and report["mesh"]["faces"] > 0
+        assert report["mesh"]["export_bytes"] == (out / f"{name}.ply").stat().st_size
+        cluster_info = report["cluster"]
+        assert cluster_info["attempts"] == 1 and cluster_info["errors"] == [] and cluster_info["node"] in node_ids
+        # Declared from the capture: more than the Blender process alone, within one node's memory.
+        assert 1.0e9 < cluster_info["memory"]["declared_bytes"] <= NODE_MEMORY
+
+    broken = json.loads((out / "broken.report.json").read_text())
+    assert broken["status"] == "failed" and broken["failed_step"] == "import capture" and broken["blend"] is None
+    assert "0.jpg" in broken["error"] and "at least 2 are needed" in broken["error"]
+    # Both attempts failed the same way (the messages differ only in a Python object's address).
+    first, second = broken["cluster"]["errors"]
+    assert broken["cluster"]["attempts"] == 2 and second == broken["error"] and "at least 2 are needed" in first
