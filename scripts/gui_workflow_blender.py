@@ -1,0 +1,347 @@
+"""The whole Blender workflow in a real, windowed Blender, driven through the add-on's operators and
+panels as a user drives them; runs inside Blender (`blender --python scripts/gui_workflow_blender.py
+-- --photos DIR --out DIR`), started by scripts/gui_workflow.py under Xvfb.
+
+Import Capture -> Estimate Poses -> Reconstruct (VoRTX, the panel's voxel size and view count, tiles
+shown) -> Reconstruct (Stereo, the default) -> Show Observation -> Bake Texture -> Export Result
+(GLB). The long jobs are invoked as the panel's buttons invoke them ('INVOKE_DEFAULT': modal, with
+progress in the status bar and the sidebar), so the window keeps drawing while they run. After each
+step the scene is checked; screenshots of the VoRTX sidebar and of the whole window are taken with
+ImageMagick's `import` (Blender's own screenshot operator gives black images with software GL).
+
+Everything happens in timer callbacks: a --python script runs before the window's first draw, and
+modal operators need the event loop running. The outcome is written to <out>/report.json (steps,
+checks, timings, screenshots); Blender then quits. A failed check ends the run there.
+"""
+
+import argparse
+import importlib
+import json
+import os
+import subprocess
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import bpy
+
+ADDON = "bl_ext.user_default.vortx"
+# Child panels closed by default: opened before the sidebar first draws, as a user clicks them open,
+# so the screenshots show every panel.
+OPEN_PANELS = ("VORTX_PT_pose_settings", "VORTX_PT_model", "VORTX_PT_stereo", "VORTX_PT_advanced")
+# The settings typed into the panels (small: the run stays a few minutes on two CPU cores).
+VOXEL_SIZE = 0.06
+VIEW_COUNT = 12
+TEXTURE_SIZE = 1024
+FACE_BUDGET = 40000
+JOB_TIMEOUT_S = 1200
+
+
+def parse_args() -> argparse.Namespace:
+    argv = sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else []
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--photos", type=Path, required=True)
+    parser.add_argument("--out", type=Path, required=True)
+    return parser.parse_args(argv)
+
+
+ARGS = parse_args()
+ARGS.out.mkdir(parents=True, exist_ok=True)
+REPORT: dict = {"steps": [], "shots": [], "blender": bpy.app.version_string, "python": sys.version.split()[0]}
+
+
+class CheckFailed(Exception):
+    pass
+
+
+def check(condition: bool, what: str) -> None:
+    REPORT["steps"][-1]["checks"].append({"check": what, "ok": bool(condition)})
+    if not condition:
+        raise CheckFailed(what)
+
+
+def begin(name: str) -> None:
+    REPORT["steps"].append({"step": name, "checks": [], "started": time.time()})
+    print(f"GUI-WORKFLOW step: {name}", flush=True)
+
+
+def end() -> None:
+    step = REPORT["steps"][-1]
+    step["seconds"] = round(time.time() - step.pop("started"), 1)
+
+
+def addon(module: str):
+    return importlib.import_module(f"{ADDON}.{module}")
+
+
+# --- the window ---------------------------------------------------------------------------------
+
+
+def view3d():
+    window = bpy.context.window_manager.windows[0]
+    area = next(a for a in window.screen.areas if a.type == "VIEW_3D")
+    region = next(r for r in area.regions if r.type == "WINDOW")
+    return window, area, region
+
+
+def sidebar():
+    _, area, _ = view3d()
+    return next(r for r in area.regions if r.type == "UI")
+
+
+def override():
+    window, area, region = view3d()
+    return bpy.context.temp_override(window=window, screen=window.screen, area=area, region=region)
+
+
+def redraw() -> None:
+    for area in bpy.context.window_manager.windows[0].screen.areas:
+        area.tag_redraw()
+
+
+def shot(name: str, what: str, crop_sidebar: bool) -> None:
+    """Screenshot of the X display: the VoRTX sidebar (PNG) or the whole window (JPEG)."""
+    window, _, _ = view3d()
+    path = ARGS.out / (f"{name}.png" if crop_sidebar else f"{name}.jpg")
+    command = ["import", "-window", "root"]
+    if crop_sidebar:
+        region = sidebar()
+        top = window.height - (region.y + region.height)  # X's origin is the top left, Blender's the bottom left
+        command += ["-crop", f"{region.width}x{region.height}+{region.x}+{top}", "+repage"]
+    else:
+        command += ["-crop", f"{window.width}x{window.height}+0+0", "+repage", "-resize", "1200x", "-quality", "82"]
+    subprocess.run(command + [str(path)], check=True, timeout=60)
+    REPORT["shots"].append({"file": path.name, "what": what, "bytes": path.stat().st_size})
+
+
+def show_vortx_tab():
+    """Click the sidebar's VoRTX tab, as a user does (the active tab is read-only in Python): the tabs
+    are a strip at the sidebar's right edge whose positions Python cannot read either, so xdotool
+    clicks down the strip until the VoRTX tab is active."""
+    window, _, _ = view3d()
+    region = sidebar()
+    top = window.height - (region.y + region.height)  # X's origin is the top left, Blender's the bottom left
+    for y in range(top + 8, top + 600, 16):
+        if sidebar().active_panel_category == "VoRTX":
+            break
+        subprocess.run(["xdotool", "mousemove", str(region.x + region.width - 12), str(y), "click", "1"], check=True, timeout=30)
+        yield 0.4
+    subprocess.run(["xdotool", "mousemove", "5", "5"], check=True, timeout=30)  # no hover highlight in the shots
+
+
+def wait_for_job(title: str):
+    """Yield until the add-on's job is over (the modal operator applies the result on its last tick)."""
+    jobs = addon("vortx_blender.jobs")
+    started = time.time()
+    yield 0.5
+    while jobs.active_job() is not None:
+        if time.time() - started > JOB_TIMEOUT_S:
+            raise CheckFailed(f"{title} still running after {JOB_TIMEOUT_S} s")
+        yield 0.5
+    yield 0.5  # the modal operator's last timer tick has run; let the window draw the outcome
+
+
+# --- the workflow -------------------------------------------------------------------------------
+
+
+def workflow():
+    yield 3.0  # the window's first draws
+    begin("open the VoRTX sidebar")
+    panels = addon("ui.panels")
+    for name in OPEN_PANELS:
+        cls = getattr(panels, name)
+        bpy.utils.unregister_class(cls)
+        cls.bl_options = set(cls.bl_options) - {"DEFAULT_CLOSED"}
+        bpy.utils.register_class(cls)
+    # A new file's cube, light and camera would sit inside the room: a user deletes them first.
+    for obj in list(bpy.context.scene.objects):
+        bpy.data.objects.remove(obj)
+    _, area, _ = view3d()
+    area.spaces.active.show_region_ui = True
+    redraw()
+    yield 1.0
+    yield from show_vortx_tab()
+    redraw()
+    yield 1.0
+    check(sidebar().active_panel_category == "VoRTX", f"the sidebar shows the VoRTX tab ({sidebar().active_panel_category})")
+    dependencies = addon("vortx_blender.dependencies")
+    missing = [s.describe() for s in dependencies.status(refresh=True) if s.needs_install]
+    check(not missing, f"the engine's packages are installed (missing: {missing})")
+    shot("gui_01_start", "the VoRTX tab before a capture is imported", True)
+    end()
+
+    scene = bpy.context.scene
+    settings = scene.vortx
+    photos = sorted(ARGS.photos.iterdir())
+    begin("Import Capture")
+    with override():
+        outcome = bpy.ops.vortx.import_capture("EXEC_DEFAULT", filepath=str(ARGS.photos))
+    check(outcome == {"FINISHED"}, f"Import Capture finished ({outcome})")
+    check(settings.frame_count == len(photos), f"the panel shows {len(photos)} frames ({settings.frame_count})")
+    check(settings.posed_frame_count == 0, "the photos have no poses yet")
+    redraw()
+    yield 1.0
+    shot("gui_02_imported", "Capture panel after Import Capture", True)
+    end()
+
+    begin("Estimate Poses")
+    with override():
+        outcome = bpy.ops.vortx.estimate_poses("INVOKE_DEFAULT")
+    check(outcome == {"RUNNING_MODAL"}, f"Estimate Poses runs as a modal job ({outcome})")
+    yield from wait_for_job("Estimate Poses")
+    cameras = addon("vortx_blender.cameras")
+    collection = cameras.find_capture_collection(scene)
+    n_cameras = len([o for o in collection.objects if o.type == "CAMERA"]) if collection else 0
+    check(settings.posed_frame_count >= len(photos) // 2, f"most photos are posed ({settings.posed_frame_count} of {len(photos)})")
+    check(n_cameras == settings.posed_frame_count, f"one camera per posed photo in the capture collection ({n_cameras})")
+    check(bool(settings.scale_source), f"the scale source is shown ({settings.scale_source!r})")
+    REPORT["posed"] = settings.posed_frame_count
+    shot("gui_03_posed", "Capture panel after Estimate Poses", True)
+    end()
+
+    begin("Reconstruct with VoRTX, tiles shown")
+    settings.method = "VORTX"
+    settings.voxel_size = VOXEL_SIZE
+    settings.view_count = VIEW_COUNT
+    settings.show_tiles = True
+    redraw()
+    yield 0.5
+    with override():
+        outcome = bpy.ops.vortx.reconstruct("INVOKE_DEFAULT")
+    check(outcome == {"RUNNING_MODAL"}, f"Reconstruct runs as a modal job ({outcome})")
+    overlay_module = addon("vortx_blender.tile_overlay")
+    jobs = addon("vortx_blender.jobs")
+    seen_running = False
+    deadline = time.time() + JOB_TIMEOUT_S
+    while jobs.active_job() is not None and time.time() < deadline:
+        overlay = overlay_module.current(scene)
+        counts = overlay.counts() if overlay is not None else {}
+        if counts.get("done", 0) + counts.get("running", 0) >= 1 and not seen_running:
+            seen_running = True
+            REPORT["tiles_while_running"] = counts
+            yield 0.3
+            shot("gui_04_reconstructing", "Reconstruct running: progress in the panel and the tile grid in the viewport", False)
+            shot("gui_04_reconstructing_sidebar", "Reconstruction panel while Reconstruct runs", True)
+        yield 0.2
+    yield from wait_for_job("Reconstruct")
+    results = addon("vortx_blender.result")
+    objects = results.result_objects(scene)
+    check(len(objects) == 1 and len(objects[0].data.polygons) > 0, f"a VoRTX result mesh is in the scene ({[o.name for o in objects]})")
+    recorded = json.loads(objects[0][results.PROP_SETTINGS])
+    check(recorded.get("method") == "vortx", f"the result records the method ({recorded.get('method')})")
+    check(abs(recorded.get("voxel_size", 0) - VOXEL_SIZE) < 1e-6 and recorded.get("views") == VIEW_COUNT,
+          f"the result records the panel's voxel size and view count ({recorded.get('voxel_size')}, {recorded.get('views')})")
+    check(seen_running, "the tile grid showed tiles while Reconstruct ran")
+    overlay = overlay_module.current(scene)
+    check(overlay is not None and overlay.counts()["done"] >= 1, f"the tiles end as done ({overlay.counts() if overlay else None})")
+    REPORT["vortx_faces"] = len(objects[0].data.polygons)
+    end()
+
+    begin("Reconstruct with Stereo (the default method)")
+    settings.method = "STEREO"
+    redraw()
+    yield 0.5
+    with override():
+        outcome = bpy.ops.vortx.reconstruct("INVOKE_DEFAULT")
+    check(outcome == {"RUNNING_MODAL"}, f"Reconstruct runs as a modal job ({outcome})")
+    yield from wait_for_job("Reconstruct")
+    objects = results.result_objects(scene)
+    check(len(objects) == 1, f"the stereo result replaced the VoRTX one (Result: Replace) ({[o.name for o in objects]})")
+    result = objects[0]
+    check(json.loads(result[results.PROP_SETTINGS]).get("method") == "stereo", "the result records the stereo method")
+    check(len(result.data.polygons) > 1000, f"the stereo mesh has faces ({len(result.data.polygons)})")
+    REPORT["stereo_faces"] = len(result.data.polygons)
+    bpy.ops.object.select_all(action="DESELECT")
+    result.select_set(True)
+    bpy.context.view_layer.objects.active = result
+    with override():
+        bpy.ops.view3d.view_selected()
+    redraw()
+    yield 1.0
+    shot("gui_05_reconstructed", "the stereo mesh in the viewport (vertex colours) and the VoRTX tab", False)
+    shot("gui_05_reconstructed_sidebar", "Reconstruction, Tiles and Result panels after Reconstruct", True)
+    end()
+
+    begin("Show Observation")
+    check(results.has_observation(result.data), "the result carries the observation layer")
+    setattr(result, results.SHOW_OBSERVATION, True)  # the Result panel's toggle
+    redraw()
+    yield 1.0
+    check(results.shown_colour_attribute(result.data) == results.OBSERVATION_ATTRIBUTE,
+          f"the viewport shows the observation colours ({results.shown_colour_attribute(result.data)})")
+    shot("gui_06_observation", "Show Observation on: the confidence colours", False)
+    setattr(result, results.SHOW_OBSERVATION, False)
+    check(results.shown_colour_attribute(result.data) != results.OBSERVATION_ATTRIBUTE, "Show Observation off: the photo colours again")
+    end()
+
+    begin("Bake Texture")
+    settings.texture_size = TEXTURE_SIZE
+    settings.face_budget = FACE_BUDGET
+    redraw()
+    yield 0.5
+    with override():
+        outcome = bpy.ops.vortx.bake_texture("INVOKE_DEFAULT")
+    check(outcome == {"RUNNING_MODAL"}, f"Bake Texture runs as a modal job ({outcome})")
+    yield from wait_for_job("Bake Texture")
+    texture = addon("vortx_blender.texture")
+    summary = texture.bake_summary(result)
+    check(summary is not None and summary["texture_size"] == TEXTURE_SIZE, f"the result records the bake ({summary and summary.get('texture_size')})")
+    check(result.data.uv_layers.get("UVMap") is not None, "the result has a UVMap")
+    image = results.texture_image_of(result.active_material)
+    check(image is not None and image.packed_file is not None and tuple(image.size) == (TEXTURE_SIZE, TEXTURE_SIZE),
+          f"the texture is a packed {TEXTURE_SIZE} px image ({image and tuple(image.size)})")
+    check(len(result.data.polygons) <= FACE_BUDGET, f"the mesh is within the face budget ({len(result.data.polygons)})")
+    REPORT["textured_faces"] = len(result.data.polygons)
+    window, _, _ = view3d()
+    for area in window.screen.areas:
+        if area.type == "VIEW_3D":
+            area.spaces.active.shading.type = "MATERIAL"  # Material Preview: the texture as it renders
+    redraw()
+    yield 3.0
+    shot("gui_07_textured", "the baked texture in Material Preview", False)
+    shot("gui_07_textured_sidebar", "Result panel after Bake Texture", True)
+    end()
+
+    begin("Export Result (GLB)")
+    glb = ARGS.out / "room.glb"
+    with override():
+        outcome = bpy.ops.vortx.export_result("EXEC_DEFAULT", filepath=str(glb))
+    check(outcome == {"FINISHED"}, f"Export Result finished ({outcome})")
+    data = glb.read_bytes() if glb.exists() else b""
+    check(data[:4] == b"glTF", "the GLB starts with the glTF magic")
+    length = int.from_bytes(data[12:16], "little")
+    gltf = json.loads(data[20:20 + length])
+    check(len(gltf.get("images", [])) == 1 and len(gltf.get("meshes", [])) >= 1, f"the GLB has the mesh and its texture image ({len(gltf.get('images', []))} images)")
+    REPORT["glb_bytes"] = len(data)
+    end()
+
+
+def finish(ok: bool, error: str = "") -> None:
+    REPORT["ok"] = ok
+    if error:
+        REPORT["error"] = error
+        if REPORT["steps"]:
+            REPORT["steps"][-1]["error"] = error
+            REPORT["steps"][-1].pop("started", None)
+    (ARGS.out / "report.json").write_text(json.dumps(REPORT, indent=1))
+    print(f"GUI-WORKFLOW {'OK' if ok else 'FAILED: ' + error}", flush=True)
+    bpy.ops.wm.quit_blender()
+
+
+STEPS = workflow()
+
+
+def tick():
+    try:
+        return next(STEPS)
+    except StopIteration:
+        finish(True)
+    except CheckFailed as failed:
+        finish(False, f"check failed: {failed}")
+    except Exception as error:  # a bug in the add-on or here: the report keeps the traceback
+        finish(False, "".join(traceback.format_exception(error))[-3000:])
+    return None
+
+
+bpy.app.timers.register(tick, first_interval=1.0)

@@ -1,0 +1,62 @@
+"""The whole workflow in a real Blender window: a Linux distribution's Blender (Debian 13's 4.3, on
+Python 3.13 with numpy 2.2) in a chroot under Xvfb, the extension installed from `make extension`'s
+zip with Blender's own command, the engine's packages by the add-on's own installer, then every step
+driven through the add-on's operators and checked (scripts/gui_workflow.py and
+scripts/gui_workflow_blender.py).
+
+It needs that chroot (../shared/tools/gui_blender_setup.sh, run as root) and root for chroot; without
+them it skips at once, naming what is missing. The first run in a fresh chroot downloads the engine's
+packages (several GB: torch's CUDA build).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from conftest import REPO
+
+sys.path.insert(0, str(REPO / "scripts"))
+import gui_workflow  # noqa: E402  (scripts/ is not a package)
+
+STEPS = [
+    "open the VoRTX sidebar", "Import Capture", "Estimate Poses", "Reconstruct with VoRTX, tiles shown",
+    "Reconstruct with Stereo (the default method)", "Show Observation", "Bake Texture", "Export Result (GLB)",
+]
+
+
+@pytest.fixture(scope="module")
+def gui_root() -> Path:
+    root = gui_workflow.default_root()
+    try:
+        gui_workflow.check_root(root)
+    except gui_workflow.GuiUnavailable as missing:
+        pytest.skip(f"no windowed Blender here: {missing}")
+    return root
+
+
+@pytest.mark.slow
+def test_whole_workflow_in_a_blender_window(gui_root: Path) -> None:
+    report = gui_workflow.run_workflow(gui_root, timeout=3000)
+    failed = [f"{s['step']}: {c['check']}" for s in report["steps"] for c in s["checks"] if not c["ok"]]
+    assert report["ok"], f"{report.get('error')}\nfailed checks: {failed}\n{report['log'][-4000:]}"
+    assert [s["step"] for s in report["steps"]] == STEPS
+    assert report["blender"].startswith("4.3") and report["python"].startswith("3.13")  # the distribution's Blender, not bpy
+    assert report["stereo_faces"] > 1000 and report["textured_faces"] <= report["stereo_faces"]
+    assert report["glb_bytes"] > 100_000  # the mesh and its 1024 px texture
+    out = Path(report["out"])
+    for shot in report["shots"]:
+        pixels = np.asarray(Image.open(out / shot["file"]).convert("L"), dtype=np.float32)
+        # A real screenshot: not the black image Blender's own screenshot gives with software GL.
+        assert pixels.std() > 10 and pixels.mean() > 20, (shot, pixels.mean(), pixels.std())
+    sidebars = [s for s in report["shots"] if s["file"].endswith(".png")]
+    assert len(sidebars) >= 5 and all(s["bytes"] < 300_000 for s in report["shots"])
+
+
+def test_a_missing_root_is_named_with_what_to_do(tmp_path: Path) -> None:
+    with pytest.raises(gui_workflow.GuiUnavailable, match=r"usr/bin/blender.*gui_blender_setup\.sh"):
+        gui_workflow.check_root(tmp_path)
