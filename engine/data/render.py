@@ -62,7 +62,10 @@ class RenderSettings:
 class RoomRenderer:
     """A room built in its own Blender scene, ready to render from any pose. Use as a context manager."""
 
-    def __init__(self, spec: RoomSpec, parts: list[MeshPart], settings: RenderSettings) -> None:
+    def __init__(self, spec: RoomSpec, parts: list[MeshPart], settings: RenderSettings,
+                 lossless_color: bool = False) -> None:
+        """lossless_color: write the colour as 8-bit PNG instead of JPEG (a "real" room degrades the
+        render before its one JPEG compression, engine.data.degrade)."""
         from ..process_guards import keep_triton_out
 
         keep_triton_out()  # a Workbench render here must not meet Triton later (see process_guards)
@@ -70,6 +73,7 @@ class RoomRenderer:
 
         self.bpy = bpy
         self.settings = settings
+        self.lossless_color = lossless_color
         self.builder = SceneBuilder(f"vortx_room_{spec.seed}")
         self._tmp = tempfile.TemporaryDirectory(prefix="vortx-render-")
         try:
@@ -117,8 +121,13 @@ class RoomRenderer:
         s, scene = self.settings, self.scene
         r = scene.render
         r.resolution_x, r.resolution_y, r.resolution_percentage = s.width, s.height, 100
-        r.image_settings.file_format = "JPEG"
-        r.image_settings.quality = s.jpeg_quality
+        if self.lossless_color:
+            r.image_settings.file_format = "PNG"
+            r.image_settings.color_depth = "8"
+            r.image_settings.compression = 15  # fast: the PNG is an intermediate
+        else:
+            r.image_settings.file_format = "JPEG"
+            r.image_settings.quality = s.jpeg_quality
         r.use_compositing = True
         scene.view_settings.view_transform = "AgX"
         # AgX's base look is flat; more local contrast keeps textures visible to SIFT and the CNN.
@@ -165,7 +174,7 @@ class RoomRenderer:
     # -------------------------------------------------------------------------------- render
 
     def render(self, cam_to_world: np.ndarray, color_path: Path) -> np.ndarray:
-        """Render one view: writes the colour JPEG to `color_path`, returns planar depth (H, W) float32
+        """Render one view: writes the colour JPEG (PNG if lossless_color) to `color_path`, returns planar depth (H, W) float32
         metres (0 where the ray hits nothing). cam_to_world (4, 4) in OpenCV axes."""
         from mathutils import Matrix
 

@@ -27,6 +27,11 @@ PATTERNS = ("noise", "voronoi", "brick", "wave", "checker", "marble")
 SURFACE_MIXES = ("textured", "mixed")
 PLAIN_PAINT_SHARE = 0.5  # walls / ceilings turned plain in a "mixed" room
 DARK_OR_GLOSSY_SHARE = 0.3  # furniture / item materials turned dark or glossy in a "mixed" room
+# Clutter levels of `generate_room`. "normal": a few items on tables and low cabinets (the rooms so
+# far). "dense": as lived-in rooms are, more small things on every table and cabinet top and some on
+# the floor along the walls: thin, small geometry that fusion and stereo must not smear away.
+CLUTTER_LEVELS = ("normal", "dense")
+FLOOR_ITEMS_PER_M2 = 0.3  # "dense": small things standing on the floor (at most this many per m^2)
 
 
 @dataclass
@@ -73,7 +78,7 @@ class FurniturePart:
 
 @dataclass
 class FurnitureSpec:
-    kind: str  # "cabinet", "shelf", "table", "cylinder", "crate"
+    kind: str  # "cabinet", "shelf", "table", "cylinder", "crate", "picture", "item" (small thing on the floor)
     center: list[float]  # footprint centre (x, y)
     footprint: list[float]  # (size along local x, size along local y)
     yaw: float
@@ -114,18 +119,70 @@ class RoomSpec:
 # ------------------------------------------------------------------------------------------ sampling
 
 
-def generate_room(seed: int, surfaces: str = "textured") -> RoomSpec:
+def generate_room(seed: int, surfaces: str = "textured", clutter: str = "normal") -> RoomSpec:
     """The room for `seed`: 3-8 m x 3-8 m, 2.4-3.2 m high, with openings, furniture, lights, materials.
 
     surfaces: one of SURFACE_MIXES. "mixed" repaints some materials afterwards from a separate random
     stream, so the geometry, cameras and other materials of a seed are the same under both mixes.
+    clutter: one of CLUTTER_LEVELS. "dense" adds small items afterwards from another stream: the rest
+    of the room and the camera walk (which never aims at the items) stay those of the seed.
     """
     if surfaces not in SURFACE_MIXES:
         raise ValueError(f"surfaces must be one of {SURFACE_MIXES}, got {surfaces!r}")
+    if clutter not in CLUTTER_LEVELS:
+        raise ValueError(f"clutter must be one of {CLUTTER_LEVELS}, got {clutter!r}")
     spec = _generate_textured_room(seed)
     if surfaces == "mixed":
         _repaint_mixed(spec, np.random.default_rng([seed, 2]))
+    if clutter == "dense":
+        _add_dense_clutter(spec, np.random.default_rng([seed, 5]))
     return spec
+
+
+def _add_dense_clutter(spec: RoomSpec, rng: np.random.Generator) -> None:
+    """In place: more items on every table and low cabinet, and small things on the floor."""
+    items = sorted(name for name in spec.materials if name.startswith("item"))
+
+    def pick_material(pool: str, palette: str = "any") -> str:
+        return items[int(rng.integers(0, len(items)))]
+
+    for piece in list(spec.furniture):
+        if piece.kind == "table" or (piece.kind == "cabinet" and piece.height < 1.3):
+            w, d = piece.footprint
+            sx, sy = (0.85, 0.85) if piece.kind == "table" else (0.9, 0.8)  # as the first items were placed
+            bottom = [p.center[2] - (p.size[2] / 2 if p.shape == "box" else 0.0) for p in piece.parts]
+            taken = [_local_footprint(piece, p) for p, z in zip(piece.parts, bottom) if z >= piece.height - 1e-6]
+            piece.parts += _clutter(rng, piece, piece.height, w * sx, d * sy, pick_material,
+                                    count=int(rng.integers(3, 8)), taken=taken)
+    path_xy = np.asarray(spec.path.points)[:, :2]
+    n_floor = int(rng.integers(2, 2 + int(FLOOR_ITEMS_PER_M2 * spec.length * spec.width)))
+    placed = 0
+    for _ in range(n_floor * 20):
+        if placed >= n_floor:
+            break
+        r = float(rng.uniform(0.06, 0.2))
+        x, y = rng.uniform(0.1 + r, spec.length - 0.1 - r), rng.uniform(0.1 + r, spec.width - 0.1 - r)
+        yaw = float(rng.uniform(-np.pi, np.pi))
+        height = float(rng.uniform(0.05, 0.45))
+        piece = FurnitureSpec("item", [float(x), float(y)], [2 * r, 2 * r], yaw, height)
+        if not _fits(piece, spec.furniture, path_xy, spec.openings, spec.length, spec.width):
+            continue
+        material = pick_material("item")
+        if rng.random() < 0.5:
+            piece.parts = [FurniturePart("cylinder", [float(x), float(y), 0.0], [r, r, height], 0.0, material)]
+        else:
+            piece.parts = [FurniturePart("box", [float(x), float(y), height / 2], [2 * r, 2 * r * float(rng.uniform(0.6, 1.0)),
+                                                                                   height], yaw, material)]
+        spec.furniture.append(piece)
+        placed += 1
+
+
+def _local_footprint(piece: FurnitureSpec, part: FurniturePart) -> tuple[float, float, float]:
+    """(local x, local y, radius) of a part standing on `piece`, for keeping new items clear of it."""
+    c, s = np.cos(piece.yaw), np.sin(piece.yaw)
+    dx, dy = part.center[0] - piece.center[0], part.center[1] - piece.center[1]
+    radius = part.size[0] if part.shape == "cylinder" else float(np.hypot(part.size[0], part.size[1])) / 2
+    return float(c * dx + s * dy), float(-s * dx + c * dy), float(radius)
 
 
 def _repaint_mixed(spec: RoomSpec, rng: np.random.Generator) -> None:
@@ -425,11 +482,13 @@ def _table_parts(rng, piece, material, pick_material) -> list[FurniturePart]:
     return parts + _clutter(rng, piece, h, w * 0.85, d * 0.85, pick_material)
 
 
-def _clutter(rng, piece, top, w, d, pick_material) -> list[FurniturePart]:
-    """Small boxes and cylinders standing on a surface at height `top` of size w x d (local frame)."""
+def _clutter(rng, piece, top, w, d, pick_material, count: Optional[int] = None,
+             taken: Optional[list[tuple[float, float, float]]] = None) -> list[FurniturePart]:
+    """Small boxes and cylinders standing on a surface at height `top` of size w x d (local frame);
+    `count` items (default 1-5), clear of the `taken` (local x, local y, radius) spots."""
     parts: list[FurniturePart] = []
-    placed: list[tuple[float, float, float]] = []
-    for _ in range(int(rng.integers(1, 6))):
+    placed: list[tuple[float, float, float]] = list(taken or [])
+    for _ in range(int(rng.integers(1, 6)) if count is None else count):
         for _try in range(8):
             r = rng.uniform(0.04, 0.14)
             lx, ly = rng.uniform(-w / 2 + r, w / 2 - r), rng.uniform(-d / 2 + r, d / 2 - r)

@@ -48,6 +48,28 @@ def gt_path(room: Path) -> Optional[Path]:
     return None
 
 
+def with_true_poses(capture):
+    """The room's capture with every frame at the pose it was rendered from: a "real" room
+    (`synth --realism real`) gives methods poses with errors in pose/ and keeps the exact ones in
+    pose_true/; scoring against the true depth maps must use those. Other rooms come back as they are."""
+    from dataclasses import replace
+
+    from ..capture.geometry import parse_pose
+    from .scannet_layout import TRUE_POSE_DIR
+
+    true_dir = Path(capture.root) / TRUE_POSE_DIR
+    if not true_dir.is_dir():
+        return capture
+    frames = []
+    for frame in capture.frames:
+        path = true_dir / f"{Path(frame.image_path).stem}.txt"
+        if not path.is_file():
+            raise VortxError(f"{path} is missing: the room's true poses are incomplete; render the room again "
+                             f"with `python -m engine synth`")
+        frames.append(replace(frame, pose=parse_pose(np.loadtxt(path))))
+    return capture.with_frames(frames)
+
+
 class _LazyDepths:
     """Sequence of depth maps read on access (fusion reads one frame at a time)."""
 

@@ -7,6 +7,15 @@
     intrinsic/intrinsic_color.txt, intrinsic_depth.txt   4x4 (K in the top-left 3x3)
     intrinsic/extrinsic_color.txt, extrinsic_depth.txt   4x4 identity (colour and depth share a camera)
 
+A "real" room (`synth --realism real`, engine.data.degrade) adds, for scoring and comparison:
+
+    pose_true/000000.txt     the exact pose the frame was rendered from (pose/ then holds it with a
+                             per-frame error of 0.5-2 deg and 1-3 cm, what a method is given)
+    color_clean/000000.png   the render before the photo degradations (lossless)
+    degradations.json        what was done to each photo (exposure, white balance, blur, JPEG quality)
+
+Depth maps, mesh_gt.ply and the TSDF are always those of the true poses.
+
 K follows the engine's convention (pixel (0, 0) covers [0, 1)^2); colour and depth have the same size.
 """
 
@@ -19,6 +28,7 @@ import cv2
 import numpy as np
 
 COLOR_DIR, DEPTH_DIR, DEPTH_FLOAT_DIR, POSE_DIR, INTRINSIC_DIR = "color", "depth", "depth_float", "pose", "intrinsic"
+TRUE_POSE_DIR, CLEAN_COLOR_DIR = "pose_true", "color_clean"
 MAX_DEPTH_MM = 65535
 
 
@@ -30,8 +40,12 @@ def color_path(root: Path, index: int) -> Path:
     return root / COLOR_DIR / f"{frame_stem(index)}.jpg"
 
 
-def pose_path(root: Path, index: int) -> Path:
-    return root / POSE_DIR / f"{frame_stem(index)}.txt"
+def clean_color_path(root: Path, index: int) -> Path:
+    return root / CLEAN_COLOR_DIR / f"{frame_stem(index)}.png"
+
+
+def pose_path(root: Path, index: int, folder: str = POSE_DIR) -> Path:
+    return root / folder / f"{frame_stem(index)}.txt"
 
 
 def depth_float_path(root: Path, index: int) -> Path:
@@ -67,9 +81,10 @@ def write_depth(root: Path, index: int, depth: np.ndarray) -> None:
     os.replace(tmp, npy)
 
 
-def write_pose(root: Path, index: int, cam_to_world: np.ndarray) -> None:
-    """Written last for a frame: its presence marks the frame complete (resume relies on it)."""
-    path = pose_path(root, index)
+def write_pose(root: Path, index: int, cam_to_world: np.ndarray, folder: str = POSE_DIR) -> None:
+    """The pose/ file is written last for a frame: its presence marks the frame complete (resume
+    relies on it). folder=TRUE_POSE_DIR writes a "real" room's true pose."""
+    path = pose_path(root, index, folder)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{frame_stem(index)}.tmp.txt")
     np.savetxt(tmp, np.asarray(cam_to_world, np.float64), fmt="%.9f")
@@ -84,3 +99,4 @@ def frame_complete(root: Path, index: int) -> bool:
 
 def read_depth_float(root: Path, index: int) -> np.ndarray:
     return np.load(depth_float_path(root, index))
+

@@ -88,7 +88,9 @@ def _look_angles(spec: "RoomSpec", positions: np.ndarray, rng: np.random.Generat
     n = len(positions)
     center = np.array(spec.path.center)
     tables = [p for p in spec.furniture if p.kind == "table"]
-    others = [p for p in spec.furniture if p.kind != "table"]
+    # Small floor items ("dense" clutter) are not aimed at, so a seed walks the same path under every
+    # clutter level.
+    others = [p for p in spec.furniture if p.kind not in ("table", "item")]
     keys = list(range(0, n, int(rng.integers(4, 8)))) + [n - 1]
     key_yaw, key_pitch = [], []
     for i in keys:
