@@ -17,7 +17,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..data.room_folders import find_rooms, precompute_room
+from ..data.room_folders import find_rooms, precompute_room, with_true_poses
 from ..errors import VortxError
 
 DEPTH_EVERY = 4  # frames for the depth metrics: every 4th (10 of a rendered room's 40)
@@ -50,7 +50,9 @@ def evaluate_rooms(
         volume = TsdfVolume.load(precompute_room(room))
         gt = read_ply(room / "mesh_gt.ply")
         capture = load_capture(room)
-        depth_views = capture_depth_views(capture, every=DEPTH_EVERY)
+        # Methods get the room's poses (with errors in a "real" room); the rendered depth is scored
+        # from the poses it was rendered from.
+        depth_views = capture_depth_views(with_true_poses(capture), every=DEPTH_EVERY)
 
         def depth_scores(mesh) -> dict:
             scores = mesh_depth_metrics(mesh.vertices, mesh.faces, depth_views)
