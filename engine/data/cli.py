@@ -63,6 +63,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.heldout_set is not None:
+        chosen = [flag for flag, value in (("--rooms", args.rooms), ("--surfaces", args.surfaces),
+                                           ("--clutter", args.clutter), ("--cycles-share", args.cycles_share))
+                  if value is not None] + (["--realism"] if args.realism != "clean" else [])
+        if chosen:
+            raise VortxError(f"--heldout-set {args.heldout_set} fixes the rooms and their options; drop "
+                             f"{', '.join(chosen)} (or drop --heldout-set to choose them)")
         first_seed, rooms, options = dev_room_set(args.heldout_set)
     else:
         if args.rooms is None:

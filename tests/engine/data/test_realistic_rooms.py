@@ -162,6 +162,8 @@ def test_cli_realism_preset_and_errors(tmp_path, monkeypatch):
     assert seen["rooms"] == DEV_ROOM_SEEDS[1] and seen["first_seed"] == DEV_ROOM_SEEDS[0]
     with pytest.raises(VortxError, match="--rooms is required"):
         synth_cli.run(parser.parse_args(["--out", str(tmp_path)]))
+    with pytest.raises(VortxError, match="drop --rooms"):
+        synth_cli.run(parser.parse_args(["--heldout-set", "clean", "--rooms", "2", "--out", str(tmp_path)]))
     with pytest.raises(VortxError, match="--cycles-share"):
         synth_cli.run(parser.parse_args(["--rooms", "1", "--out", str(tmp_path), "--cycles-share", "2"]))
 
