@@ -21,8 +21,13 @@ class StereoOptions:
     min_ncc: float = 0.5  # depths whose aggregated NCC is below this are dropped
     min_depth: float = 0.2  # metres: the nearest plane
     max_depth: float = 5.0  # metres: the farthest plane (the depth range is narrowed per view to the scene)
+    ground_planes: int = 0  # horizontal planes (world z) swept as well, for floors and tables at grazing angles (0 = off)
+    clean_depth: bool = False  # drop speckles and take a 5 x 5 median of each depth map (depth_filters.py)
     max_references: int = 100  # keyframes used as references, evenly spaced when there are more
     consistency_views: int = 0  # keep a depth only if this many other references agree (0 = off)
+    evidence_fusion: bool = False  # weigh each depth by its evidence in fusion (fused_tsdf.fuse_stereo_evidence)
+    min_support: int = 1  # with evidence fusion: views that must agree before a voxel can carry a surface
+    piece_min_views: int = 0  # with evidence fusion: drop mesh pieces that fewer views agree on anywhere (0 = keep all)
     device: str = "cpu"
 
     def validate(self) -> None:
@@ -45,6 +50,8 @@ class StereoOptions:
             raise VortxError(f"stereo minimum NCC must be in [-1, 1), got {self.min_ncc}")
         if not 0 < self.min_depth < self.max_depth:
             raise VortxError(f"stereo depth range must satisfy 0 < min ({self.min_depth}) < max ({self.max_depth})")
+        if self.ground_planes < 0:
+            raise VortxError(f"stereo ground planes cannot be negative, got {self.ground_planes}")
         if self.max_references < 1:
             raise VortxError(f"stereo references must be at least 1, got {self.max_references}")
         if self.consistency_views < 0:

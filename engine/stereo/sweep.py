@@ -71,7 +71,7 @@ def warp_source(source: Tensor, K_src: Tensor, src_from_ref: Tensor, rays: Tenso
     (the point is in front of the source camera and projects into its image).
     """
     D, H, W = depths.shape
-    points = rays[None] * depths.reshape(D, 1, -1)  # (D, 3, HW) reference camera coordinates
+    points = rays[None] * depths.reshape(D, 1, -1)  # (D, 3, HW) reference camera coordinates; depth <= 0 = no hypothesis
     moved = src_from_ref[:3, :3] @ points + src_from_ref[:3, 3:4]
     projected = K_src @ moved
     z = projected[:, 2]
@@ -79,7 +79,7 @@ def warp_source(source: Tensor, K_src: Tensor, src_from_ref: Tensor, rays: Tenso
     z_safe = torch.where(in_front, z, torch.ones_like(z))
     u, v = projected[:, 0] / z_safe, projected[:, 1] / z_safe
     sh, sw = source.shape
-    inside = in_front & (u >= 0) & (u <= sw) & (v >= 0) & (v <= sh)
+    inside = in_front & (u >= 0) & (u <= sw) & (v >= 0) & (v <= sh) & (depths.reshape(D, -1) > 0)
     grid = torch.stack([2.0 * u / sw - 1.0, 2.0 * v / sh - 1.0], dim=-1).reshape(D, H, W, 2)
     warped = F.grid_sample(source[None, None].expand(D, 1, sh, sw), grid.to(source.dtype), mode="bilinear",
                            padding_mode="border", align_corners=False)
@@ -100,7 +100,7 @@ def matching_cost(
     rays = pixel_rays(K_ref, H, W)
     mean_r = box_mean(reference, window)
     std_r = (box_mean(reference * reference, window) - mean_r ** 2).clamp_min(0).sqrt()
-    depths = 1.0 / inv_depths
+    depths = torch.where(inv_depths > 0, 1.0 / inv_depths.clamp_min(1e-9), torch.zeros_like(inv_depths))
     cost = torch.empty(inv_depths.shape, dtype=reference.dtype, device=reference.device)
     for a in range(0, len(inv_depths), PLANE_CHUNK):
         check(cancel)
@@ -138,6 +138,49 @@ def parabola_offset(cost: Tensor, best: Tensor) -> Tensor:
     return torch.where(interior, offset.clamp(-0.5, 0.5), torch.zeros_like(offset))
 
 
+def ground_plane_hypotheses(rays: Tensor, up: Tensor, camera_height: float, heights: Tensor, height: int,
+                            width: int) -> Tensor:
+    """(P, H, W) inverse depths of the reference pixels on horizontal planes (world z = heights[p]).
+
+    rays (3, H*W) from `pixel_rays`; up (3,) the world's +Z in reference camera coordinates;
+    camera_height the camera centre's world z. A pixel whose ray does not reach a plane (parallel, or
+    the plane is behind the camera) gets 0: no hypothesis. Sweeping these planes as well as the
+    fronto-parallel ones (Gallup et al., CVPR 2007: multiple sweeping directions) matches floors,
+    table tops and ceilings seen at grazing angles, where a fronto-parallel window straddles a range
+    of depths.
+    """
+    rise = up @ rays  # (H*W,) world z gained per metre of camera depth along each pixel's ray
+    offset = heights[:, None] - camera_height  # (P, 1)
+    inv = rise[None] / torch.where(offset.abs() > 1e-6, offset, torch.full_like(offset, 1e-6))
+    return inv.clamp_min(0).reshape(len(heights), height, width)
+
+
+@dataclass
+class _FamilyBest:
+    estimate: Tensor  # (H, W) inverse depth of the best hypothesis, sub-hypothesis refined
+    step: Tensor  # (H, W) inverse-depth spacing of the family's hypotheses at the pixel
+    confidence: Tensor  # (H, W) best aggregated score
+    at_end: Tensor  # (H, W) bool: the best hypothesis is the family's first or last
+
+
+def _best_of(cost: Tensor, hypotheses: Tensor) -> _FamilyBest:
+    """The best hypothesis of one ordered family (D, H, W) of inverse depths and its score (D, H, W)."""
+    D = cost.shape[0]
+    best = cost.argmax(dim=0)
+    lo, hi = (best - 1).clamp(0, D - 1), (best + 1).clamp(0, D - 1)
+    at = hypotheses.gather(0, best[None])[0]
+    step = (hypotheses.gather(0, hi[None])[0] - hypotheses.gather(0, lo[None])[0]).abs() / (hi - lo).clamp_min(1)
+    below, above = hypotheses.gather(0, lo[None])[0], hypotheses.gather(0, hi[None])[0]
+    offset = parabola_offset(cost, best)
+    # A family is ordered along each pixel's ray (ascending inverse depth for fronto-parallel planes,
+    # either way for ground planes), so the sub-hypothesis offset moves toward the neighbour on its side.
+    estimate = at + offset * torch.where(offset >= 0, above - at, at - below)
+    # A peak next to a missing hypothesis (a ground plane the ray does not reach) is an end of the range too.
+    valid = (at > 0) & (below > 0) & (above > 0)
+    return _FamilyBest(estimate, step, torch.where(at > 0, cost.gather(0, best[None])[0], torch.full_like(at, -1.0)),
+                       (best == 0) | (best == D - 1) | ~valid)
+
+
 def sweep_depth(
     reference: Tensor,
     sources: Tensor,
@@ -152,13 +195,16 @@ def sweep_depth(
     min_ncc: float,
     refine_rounds: int = 1,
     cancel: Optional[CancelToken] = None,
+    ground_planes: Optional[tuple[Tensor, float, Tensor]] = None,
 ) -> SweepResult:
     """Depth and confidence of one reference view.
 
     reference (H, W); sources (S, H', W') (any size); K_ref (3, 3), K_src (S, 3, 3) in pixels of their
-    images; src_from_ref (S, 4, 4); depth_range (near, far) metres. A pixel gets a depth when its
-    aggregated NCC reaches `min_ncc`, it has texture, and the best plane is not at an end of the range
-    (a peak there means the surface is outside the range).
+    images; src_from_ref (S, 4, 4); depth_range (near, far) metres. ground_planes: optional
+    (up (3,) world +Z in reference camera coordinates, the camera's world height, plane heights (P,)
+    ascending) for a second sweep over horizontal planes; each pixel keeps the better of the two.
+    A pixel gets a depth when its aggregated NCC reaches `min_ncc`, it has texture, and the best
+    hypothesis is not at an end of its family (a peak there means the surface is outside the range).
     """
     H, W = reference.shape
     dtype, device = reference.dtype, reference.device
@@ -169,19 +215,29 @@ def sweep_depth(
     inv = torch.linspace(1.0 / far, 1.0 / near, planes, dtype=dtype, device=device)
     hypotheses = inv[:, None, None].expand(planes, H, W)
     cost = matching_cost(reference, sources, K_ref, K_src, src_from_ref, hypotheses, window, best_k, cancel)
-    best = cost.argmax(dim=0)
-    at_end = (best == 0) | (best == planes - 1)
-    step = (inv[1] - inv[0])
-    estimate = inv[best] + parabola_offset(cost, best) * step
-    confidence = cost.gather(0, best[None])[0]
+    found = _best_of(cost, hypotheses)
+    del cost
+    if ground_planes is not None and len(ground_planes[2]) >= 3:
+        up, camera_height, heights = ground_planes
+        ground = ground_plane_hypotheses(pixel_rays(K_ref, H, W), up.to(dtype), camera_height, heights.to(dtype), H, W)
+        ground = torch.where((ground >= 1.0 / far) & (ground <= 1.0 / near), ground, torch.zeros_like(ground))
+        ground_cost = matching_cost(reference, sources, K_ref, K_src, src_from_ref, ground, window, best_k, cancel)
+        other = _best_of(ground_cost, ground)
+        del ground_cost, ground
+        use = other.confidence > found.confidence
+        found = _FamilyBest(*(torch.where(use, b, a) for a, b in ((found.estimate, other.estimate), (found.step, other.step),
+                                                                  (found.confidence, other.confidence),
+                                                                  (found.at_end, other.at_end))))
+    estimate, step, confidence, at_end = found.estimate, found.step, found.confidence, found.at_end
     for _ in range(refine_rounds if refine_planes > 1 else 0):
         # Finer per-pixel sweeps over +-1 step of the previous one: the first pass's step is ~0.2 m
-        # at 2 m, and each round shrinks it by (refine_planes - 1) / 2.
-        fine = torch.linspace(-1.0, 1.0, refine_planes, dtype=dtype, device=device) * step
-        hypotheses = (estimate[None] + fine[:, None, None]).clamp_min(1.0 / (far * 4))
+        # at 2 m, and each round shrinks it by (refine_planes - 1) / 2. Each pixel moves along its
+        # own ray, so a window on a slanted plane found by the ground sweep stays slanted.
+        fine = torch.linspace(-1.0, 1.0, refine_planes, dtype=dtype, device=device)[:, None, None] * step[None]
+        hypotheses = (estimate[None] + fine).clamp_min(1.0 / (far * 4))
         fine_cost = matching_cost(reference, sources, K_ref, K_src, src_from_ref, hypotheses, window, best_k, cancel)
         fine_best = fine_cost.argmax(dim=0)
-        step = fine[1] - fine[0]
+        step = step * 2.0 / (refine_planes - 1)
         estimate = hypotheses.gather(0, fine_best[None])[0] + parabola_offset(fine_cost, fine_best) * step
         # The best score seen for the pixel: with an even number of refinement hypotheses the first
         # estimate itself is not re-scored, and scoring only the last round dropped 10 % of the depths

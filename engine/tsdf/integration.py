@@ -41,6 +41,7 @@ def fuse_tsdf(
     device: Device = None,
     progress: Optional[ProgressCallback] = None,
     cancel: Optional[CancelToken] = None,
+    evidence: Optional["FusionEvidence"] = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Fuse depth maps into a TSDF in the ground-truth sign convention.
 
@@ -49,6 +50,13 @@ def fuse_tsdf(
     (0, 0) covering [0, 1)^2. cam_to_world (N, 4, 4) OpenCV axes; frames with non-finite poses are skipped.
     origin (3,) world position of voxel (0, 0, 0); dims (X, Y, Z). depth_cap None keeps all depth.
     Returns (tsdf, weight), each (X, Y, Z) float32 on `device`; weight counts the frames that updated a voxel.
+
+    evidence: None for the ground-truth rule above (every observation weighs 1, nearest pixel). For
+    measured depth, a `FusionEvidence` gives each observation a weight (its pixel's entry in
+    `evidence.pixel_weights`: confidence, viewing angle, expected error), looks depth up bilinearly
+    where the four neighbouring depths agree (nearest across depth edges), and fills
+    `evidence.support`: per voxel, the number of frames whose surface passes within the truncation
+    band of it (views that agree a surface is there; free-space observations carve without adding).
     """
     device = torch.device(device) if device is not None else torch.device("cpu")
     n = len(depths)
@@ -57,13 +65,58 @@ def fuse_tsdf(
     dims = tuple(int(d) for d in dims)
     tsdf = torch.ones(dims, dtype=torch.float32, device=device)
     weight = torch.zeros(dims, dtype=torch.float32, device=device)
+    if evidence is not None:
+        evidence.start(dims, device)
     for i in range(n):
         check(cancel)
         if np.isfinite(poses[i]).all():
             _integrate(tsdf, weight, depths[i], Ks[i], poses[i], np.asarray(origin, np.float64), voxel_size,
-                       trunc, depth_cap)
+                       trunc, depth_cap, evidence, i)
         report(progress, "TSDF fusion", i + 1, n)
-    return finalize_tsdf(tsdf, weight), weight
+    if evidence is None:
+        return finalize_tsdf(tsdf, weight), weight
+    return finalize_tsdf(tsdf, evidence.weight), weight
+
+
+class FusionEvidence:
+    """How measured depth is weighed in `fuse_tsdf`, and what it gathers.
+
+    pixel_weights: one (H, W) float32 map per frame (the depth map's size), > 0 where the depth counts.
+    bilinear_tolerance: relative depth spread of the four neighbours under which depth is interpolated.
+    After fusion: `weight` (X, Y, Z) the summed observation weights; `support` (X, Y, Z) the frames
+    whose surface lies within the truncation band of the voxel.
+    """
+
+    def __init__(self, pixel_weights: Sequence[np.ndarray], bilinear_tolerance: float = 0.03):
+        self.pixel_weights = pixel_weights
+        self.bilinear_tolerance = bilinear_tolerance
+        self.weight: torch.Tensor = torch.zeros(0)
+        self.support: torch.Tensor = torch.zeros(0)
+
+    def start(self, dims: tuple[int, int, int], device: torch.device) -> None:
+        self.weight = torch.zeros(dims, dtype=torch.float32, device=device)
+        self.support = torch.zeros(dims, dtype=torch.float32, device=device)
+
+
+def _bilinear_depth(depth: torch.Tensor, uf: torch.Tensor, vf: torch.Tensor, nearest: torch.Tensor,
+                    tolerance: float) -> torch.Tensor:
+    """Depth at continuous pixel positions (uf, vf) (pixel centres at integers + 0.5), interpolated from
+    the four neighbouring pixels where all have depth within `tolerance` (relative) of the nearest
+    one's; the nearest depth elsewhere (edges, holes), so no depth is invented across a discontinuity."""
+    height, width = depth.shape
+    x, y = uf - 0.5, vf - 0.5
+    x0, y0 = torch.floor(x), torch.floor(y)
+    fx, fy = x - x0, y - y0
+    x0 = x0.long().clamp_(0, width - 1)
+    y0 = y0.long().clamp_(0, height - 1)
+    x1, y1 = (x0 + 1).clamp_(max=width - 1), (y0 + 1).clamp_(max=height - 1)
+    flat = depth.reshape(-1)
+    d00, d01 = flat[y0 * width + x0], flat[y0 * width + x1]
+    d10, d11 = flat[y1 * width + x0], flat[y1 * width + x1]
+    corners = torch.stack([d00, d01, d10, d11])
+    agree = (corners > 0).all(0) & ((corners - nearest).abs() <= tolerance * nearest).all(0)
+    value = (d00 * (1 - fx) + d01 * fx) * (1 - fy) + (d10 * (1 - fx) + d11 * fx) * fy
+    return torch.where(agree, value, nearest)
 
 
 def finalize_tsdf(tsdf: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
@@ -105,6 +158,8 @@ def _integrate(
     voxel_size: float,
     trunc: float,
     depth_cap: Optional[float],
+    evidence: Optional[FusionEvidence] = None,
+    frame: int = 0,
 ) -> None:
     """Update the running mean with one frame, touching only the voxels in its frustum's bounding box."""
     device = tsdf.device
@@ -140,19 +195,33 @@ def _integrate(
     z = project(2)
     in_front = z > 0
     z_safe = torch.where(in_front, z, torch.ones_like(z))
-    u = torch.floor(project(0) / z_safe)
-    v = torch.floor(project(1) / z_safe)
+    uf, vf = project(0) / z_safe, project(1) / z_safe
+    u, v = torch.floor(uf), torch.floor(vf)
     inside = in_front & (u >= 0) & (u < width) & (v >= 0) & (v < height)
     flat = (v.clamp_(0, height - 1) * width + u.clamp_(0, width - 1)).long()
     d = depth.reshape(-1)[flat]
+    if evidence is not None:
+        d = _bilinear_depth(depth, uf, vf, d, evidence.bilinear_tolerance)
     diff = d - z
     update = inside & (d > 0) & (diff >= -trunc)
     dist = torch.clamp(diff / trunc, max=1.0)
 
     sl = tuple(slice(int(a), int(b)) for a, b in zip(lo, hi))
     t_block, w_block = tsdf[sl], weight[sl]
-    w_new = w_block + update.float()
-    mean = (t_block * w_block + dist) / torch.clamp(w_new, min=1.0)
+    if evidence is None:
+        w_new = w_block + update.float()
+        mean = (t_block * w_block + dist) / torch.clamp(w_new, min=1.0)
+        tsdf[sl] = torch.where(update, mean, t_block)
+        weight[sl] = w_new
+        return
+    pixel_weight = torch.as_tensor(np.asarray(evidence.pixel_weights[frame], np.float32), device=device).reshape(-1)[flat]
+    update &= pixel_weight > 0
+    w_obs = torch.where(update, pixel_weight, torch.zeros_like(pixel_weight))
+    e_block = evidence.weight[sl]
+    e_new = e_block + w_obs
+    mean = (t_block * e_block + dist * w_obs) / torch.clamp(e_new, min=1e-12)
     tsdf[sl] = torch.where(update, mean, t_block)
-    weight[sl] = w_new
+    evidence.weight[sl] = e_new
+    weight[sl] = w_block + update.float()
+    evidence.support[sl] += (update & (diff.abs() < trunc)).float()
 
