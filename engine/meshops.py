@@ -1,4 +1,4 @@
-"""Mesh clean-up on plain arrays: connected pieces and dropping the small ones.
+"""Mesh clean-up on plain arrays: connected pieces, dropping the small ones, merging duplicate vertices.
 
 A reconstruction's mesh often carries small floating pieces (a few triangles of noise in free space,
 a fragment seen by one photo). In VR those read as dust in the air and cost draw calls, so the user
@@ -132,3 +132,22 @@ def subdivide(vertices: np.ndarray, faces: np.ndarray, max_edge: float = 0.05, m
                               np.stack([ca, bc, fb[:, 2]], 1), np.stack([ab, bc, ca], 1)])
         f = np.concatenate([f[~big], new])
     return v, f
+
+
+def merge_duplicate_vertices(vertices: np.ndarray, faces: np.ndarray, tolerance: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+    """One vertex per position: vertices within the same `tolerance` (metres) cell become one.
+
+    Meshes split per tile, per material or per triangle (glTF, OBJ exports, a subdivision that adds
+    each edge's midpoint once per triangle) repeat a vertex where pieces meet, which makes touching
+    triangles look disconnected. Returns (unique vertices (U, 3) float64, faces (F', 3) int64) with
+    the faces that collapsed (two corners merged into one) dropped.
+    """
+    vertices = np.asarray(vertices, np.float64).reshape(-1, 3)
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    if len(vertices) == 0:
+        return vertices, faces
+    _, first, inverse = np.unique(np.round(vertices / tolerance).astype(np.int64), axis=0, return_index=True,
+                                  return_inverse=True)
+    faces = inverse.reshape(-1)[faces]
+    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
+    return vertices[first], faces

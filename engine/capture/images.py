@@ -1,4 +1,5 @@
-"""Photo files: finding them, checking them cheaply at load time, and decoding them.
+"""Photo files: finding them, checking them cheaply at load time, decoding them, and decoding them
+at the size a reconstruction step works at (`resized_size`, `load_resized`).
 
 Sizes are read with Pillow (header + EXIF only) and the pixels are decoded with OpenCV; both apply
 the EXIF orientation the same way (checked by tests for all 8 orientations), so `Frame.width/height`
@@ -11,7 +12,7 @@ import hashlib
 import io
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
+from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
@@ -19,7 +20,13 @@ from ..errors import CaptureError
 from . import exif as exif_tags
 from .naming import natural_key
 
+if TYPE_CHECKING:
+    from .model import Frame
+
 IMAGE_SUFFIXES = (".jpg", ".jpeg", ".png")
+# The 2D CNN's FPN upsamples its stride-16 map onto the stride-8 and stride-4 maps exactly only when
+# both image sides are multiples of 16.
+SIZE_MULTIPLE = 16
 # Pillow format names that OpenCV decodes too ("MPO" is the multi-picture JPEG some cameras write).
 _DECODABLE_FORMATS = ("JPEG", "MPO", "PNG")
 
@@ -152,3 +159,29 @@ def intrinsics_from_focal(focal_px: float, width: int, height: int) -> np.ndarra
     the Blender camera conversion (shift = (W/2 - cx) / max(W, H)).
     """
     return np.array([[focal_px, 0.0, width / 2.0], [0.0, focal_px, height / 2.0], [0.0, 0.0, 1.0]])
+
+
+def resized_size(width: int, height: int, long_side: int, multiple: int = SIZE_MULTIPLE) -> tuple[int, int]:
+    """(width, height) with the long side near `long_side`, both multiples of `multiple`.
+
+    Rounding to the multiple makes the two axes scale by slightly different factors, so callers
+    scale K per axis (`engine.geometry.cameras.scale_intrinsics`).
+    """
+    scale = long_side / max(width, height)
+    w = max(multiple, int(round(width * scale / multiple)) * multiple)
+    h = max(multiple, int(round(height * scale / multiple)) * multiple)
+    return w, h
+
+
+def load_resized(frame: "Frame", size: tuple[int, int]) -> np.ndarray:
+    """The frame's image as uint8 (h, w, 3) RGB at `size` = (w, h).
+
+    Downscaling uses area averaging: it is the right low-pass filter before sampling colours at
+    vertex spacing, and for the CNN it matches how a camera with fewer pixels would see the scene.
+    """
+    image = load_image(frame.image_path)
+    if image.shape[1] == size[0] and image.shape[0] == size[1]:
+        return image
+    import cv2
+    shrinking = size[0] < image.shape[1]
+    return cv2.resize(image, size, interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)

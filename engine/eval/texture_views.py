@@ -20,14 +20,14 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..capture import Capture
+from ..capture.images import resized_size
 from ..errors import VortxError
 from ..geometry.cameras import camera_to_pixels, scale_intrinsics, world_to_camera
 from ..geometry.depth_render import NEAR_PLANE
 from ..jobs import ProgressCallback, report
 from ..mesh_io import Mesh
-from ..meshops import subdivide
-from ..recon.colour import ColourView, colour_vertices, occlusion_depth
-from ..recon.images import resized_size
+from ..meshops import merge_duplicate_vertices, subdivide
+from ..recon.colour import COLOUR_LONG_SIDE, ColourView, colour_vertices, occlusion_depth
 from ..recon.mesh import compact, vertex_normals
 from ..texture.bake import bake_texture
 from ..texture.options import TextureOptions
@@ -37,7 +37,6 @@ from .image_metrics import psnr, ssim
 from .view_render import render_textured, render_vertex_colours
 
 VERTEX_COLOURS, TEXTURE, GROUND_TRUTH = "vertex colours", "texture", "ground truth textured"
-COLOUR_LONG_SIDE = 320  # vertex colours sample the photos at this size, as a reconstruction does (recon/driver.py)
 GT_MAX_EDGE = 0.1  # metres: ground-truth triangles (whole walls) are split so the z-buffers sample them densely
 WELD = 1e-5  # metres: vertices this close are one vertex, so split triangles share edges (charts, normals)
 VOTE_TOLERANCE = 0.03  # metres behind the rendered ground-truth depth a face centre may lie and count as seen
@@ -144,11 +143,7 @@ def ground_truth_surface(gt_mesh: Mesh, views: Sequence[TextureView]) -> Mesh:
     turned toward the cameras that see it (a modelled scene's winding need not face the room), and
     normals from the new winding."""
     points, faces = subdivide(gt_mesh.vertices, gt_mesh.faces, max_edge=GT_MAX_EDGE, max_rounds=12)
-    _, first, inverse = np.unique(np.round(points / WELD).astype(np.int64), axis=0, return_index=True,
-                                  return_inverse=True)
-    points, faces = points[first], inverse.reshape(-1)[faces]
-    faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
-    points, faces = compact(points, faces)
+    points, faces = compact(*merge_duplicate_vertices(points, faces, tolerance=WELD))
     faces = orient_toward_cameras(points, faces, views)
     vertices = points.astype(np.float32)
     return Mesh(vertices=vertices, faces=faces.astype(np.int32), normals=vertex_normals(vertices, faces))

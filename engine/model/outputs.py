@@ -7,12 +7,10 @@ Voxel coordinates are (N, 4) int64 `[batch, x, y, z]` in units of the level's ow
 from __future__ import annotations
 
 from dataclasses import dataclass, fields
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
+import numpy as np
 import torch
-
-if TYPE_CHECKING:
-    from .stereo_evidence import StereoEvidence
 
 # Fine-level TSDF from the logit: 1.05 * tanh(logit), so the network can reach +-1 exactly.
 TSDF_SCALE = 1.05
@@ -95,6 +93,63 @@ class LevelPrediction:
 
 
 @dataclass
+class StereoEvidence:
+    """A scene's (or a training crop's) stereo depth maps, in the frame the voxels are given in.
+
+    depth:        (S, h, w) float32 metres (planar z), 0 = no depth.
+    confidence:   (S, h, w) float32 in [0, 1].
+    K:            (S, 3, 3) float32 intrinsics in pixels of the depth maps.
+    cam_to_world: (S, 4, 4) float32 camera-to-world (OpenCV axes).
+    """
+
+    depth: torch.Tensor
+    confidence: torch.Tensor
+    K: torch.Tensor
+    cam_to_world: torch.Tensor
+
+    def __post_init__(self) -> None:
+        s = self.depth.shape[0]
+        if self.depth.dim() != 3 or self.confidence.shape != self.depth.shape:
+            raise ValueError(f"stereo depth and confidence must both be (S, h, w), got {tuple(self.depth.shape)} "
+                             f"and {tuple(self.confidence.shape)}")
+        if tuple(self.K.shape) != (s, 3, 3) or tuple(self.cam_to_world.shape) != (s, 4, 4):
+            raise ValueError(f"stereo K must be ({s}, 3, 3) and cam_to_world ({s}, 4, 4), got "
+                             f"{tuple(self.K.shape)} and {tuple(self.cam_to_world.shape)}")
+
+    def __len__(self) -> int:
+        return self.depth.shape[0]
+
+    @classmethod
+    def from_depth_maps(cls, maps, device: torch.device | str = "cpu") -> "StereoEvidence":
+        """From a list of engine.stereo.DepthMap (all of one size)."""
+        if not maps:
+            raise ValueError("no stereo depth maps")
+        return cls(
+            depth=torch.as_tensor(np.stack([m.depth for m in maps]), dtype=torch.float32, device=device),
+            confidence=torch.as_tensor(np.stack([m.confidence for m in maps]), dtype=torch.float32, device=device),
+            K=torch.as_tensor(np.stack([m.K for m in maps]), dtype=torch.float32, device=device),
+            cam_to_world=torch.as_tensor(np.stack([m.pose for m in maps]), dtype=torch.float32, device=device),
+        )
+
+    def views(self, index: torch.Tensor) -> "StereoEvidence":
+        """The maps of V views, `index` (V,) int64 into the maps; -1 = the view has no depth map (an
+        all-zero map, so its evidence is invalid everywhere)."""
+        index = torch.as_tensor(index, dtype=torch.int64, device=self.depth.device)
+        missing = index < 0
+        safe = index.clamp(min=0)
+        depth = self.depth[safe]
+        confidence = self.confidence[safe]
+        if bool(missing.any()):
+            keep = (~missing).to(depth.dtype)[:, None, None]
+            depth, confidence = depth * keep, confidence * keep
+        return StereoEvidence(depth, confidence, self.K[safe], self.cam_to_world[safe])
+
+    def to(self, device: torch.device | str) -> "StereoEvidence":
+        return StereoEvidence(self.depth.to(device), self.confidence.to(device), self.K.to(device),
+                              self.cam_to_world.to(device))
+
+
+@dataclass
 class VortxBatch:
     """A training batch of B crops, each with V views.
 
@@ -115,7 +170,7 @@ class VortxBatch:
     cam_to_world: torch.Tensor
     origin: torch.Tensor
     crop_shape: tuple[int, int, int]
-    stereo: Optional[list["StereoEvidence"]] = None
+    stereo: Optional[list[StereoEvidence]] = None
     stereo_views: Optional[torch.Tensor] = None
 
     def __post_init__(self) -> None:

@@ -1,5 +1,8 @@
 """Stereo depth as geometric evidence for VoRTX, per voxel (design: ../shared/design/stereo-evidence.md).
 
+The maps themselves travel as `StereoEvidence` (engine/model/outputs.py, with the network's other
+inputs); this module turns them into per-voxel features and priors.
+
 Two inputs, both computed from the plane-sweep depth maps (engine/stereo), never from exact depth:
 
 - per voxel and view, a token feature joined with the appearance features in the view transformer:
@@ -17,13 +20,11 @@ A depth pixel (0, 0) covers [0, 1)^2 (the engine's K convention): a projection l
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Optional
-
 import numpy as np
 import torch
 
 from ..geometry.cameras import project_points_torch
+from .outputs import TSDF_SCALE, StereoEvidence
 
 EVIDENCE_CHANNELS = 3  # projective signed distance, confidence, valid flag
 POINT_CHUNK = 16384  # voxels per fused-TSDF pass: bounds the (chunk, maps) float64 work arrays
@@ -39,63 +40,6 @@ UNOBSERVED_TSDF = 1.0
 def observed_by_prediction(tsdf: torch.Tensor) -> torch.Tensor:
     """(N,) bool: fine voxels whose predicted TSDF (N,) says observed (< UNOBSERVED_TSDF)."""
     return tsdf < UNOBSERVED_TSDF
-
-
-@dataclass
-class StereoEvidence:
-    """A scene's (or a training crop's) stereo depth maps, in the frame the voxels are given in.
-
-    depth:        (S, h, w) float32 metres (planar z), 0 = no depth.
-    confidence:   (S, h, w) float32 in [0, 1].
-    K:            (S, 3, 3) float32 intrinsics in pixels of the depth maps.
-    cam_to_world: (S, 4, 4) float32 camera-to-world (OpenCV axes).
-    """
-
-    depth: torch.Tensor
-    confidence: torch.Tensor
-    K: torch.Tensor
-    cam_to_world: torch.Tensor
-
-    def __post_init__(self) -> None:
-        s = self.depth.shape[0]
-        if self.depth.dim() != 3 or self.confidence.shape != self.depth.shape:
-            raise ValueError(f"stereo depth and confidence must both be (S, h, w), got {tuple(self.depth.shape)} "
-                             f"and {tuple(self.confidence.shape)}")
-        if tuple(self.K.shape) != (s, 3, 3) or tuple(self.cam_to_world.shape) != (s, 4, 4):
-            raise ValueError(f"stereo K must be ({s}, 3, 3) and cam_to_world ({s}, 4, 4), got "
-                             f"{tuple(self.K.shape)} and {tuple(self.cam_to_world.shape)}")
-
-    def __len__(self) -> int:
-        return self.depth.shape[0]
-
-    @classmethod
-    def from_depth_maps(cls, maps, device: torch.device | str = "cpu") -> "StereoEvidence":
-        """From a list of engine.stereo.DepthMap (all of one size)."""
-        if not maps:
-            raise ValueError("no stereo depth maps")
-        return cls(
-            depth=torch.as_tensor(np.stack([m.depth for m in maps]), dtype=torch.float32, device=device),
-            confidence=torch.as_tensor(np.stack([m.confidence for m in maps]), dtype=torch.float32, device=device),
-            K=torch.as_tensor(np.stack([m.K for m in maps]), dtype=torch.float32, device=device),
-            cam_to_world=torch.as_tensor(np.stack([m.pose for m in maps]), dtype=torch.float32, device=device),
-        )
-
-    def views(self, index: torch.Tensor) -> "StereoEvidence":
-        """The maps of V views, `index` (V,) int64 into the maps; -1 = the view has no depth map (an
-        all-zero map, so its evidence is invalid everywhere)."""
-        index = torch.as_tensor(index, dtype=torch.int64, device=self.depth.device)
-        missing = index < 0
-        safe = index.clamp(min=0)
-        depth = self.depth[safe]
-        confidence = self.confidence[safe]
-        if bool(missing.any()):
-            keep = (~missing).to(depth.dtype)[:, None, None]
-            depth, confidence = depth * keep, confidence * keep
-        return StereoEvidence(depth, confidence, self.K[safe], self.cam_to_world[safe])
-
-    def to(self, device: torch.device | str) -> "StereoEvidence":
-        return StereoEvidence(self.depth.to(device), self.confidence.to(device), self.K.to(device),
-                              self.cam_to_world.to(device))
 
 
 def _depth_lookup(points: torch.Tensor, evidence: StereoEvidence) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -148,8 +92,6 @@ def prior_logits(level_is_fine: bool, stereo_tsdf: torch.Tensor) -> torch.Tensor
     above it an occupancy logit that keeps every voxel near an observed surface (|tsdf| < 1) and
     prunes free and unobserved space."""
     if level_is_fine:
-        from .outputs import TSDF_SCALE
-
         logits = torch.atanh((stereo_tsdf / TSDF_SCALE).clamp(-0.999, 0.999))
         return torch.where(stereo_tsdf >= 1, torch.full_like(logits, MAX_FINE_LOGIT), logits)
     return OCCUPANCY_PRIOR_GAIN * (NEAR_SURFACE - stereo_tsdf.abs())

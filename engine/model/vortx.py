@@ -33,8 +33,8 @@ from .coarse_to_fine import Upsampler, subsample_per_sample
 from .config import LEVEL_IMAGE_STRIDES, LEVEL_NAMES, VortxConfig
 from .fpn import FeaturePyramid
 from .view_fusion import AverageFusion, TransformerFusion
-from .outputs import FusionOutput, LevelOutput, LevelPrediction, VortxBatch
-from .stereo_evidence import EVIDENCE_CHANNELS, StereoEvidence, fused_tsdf, prior_logits, view_evidence
+from .outputs import FusionOutput, LevelOutput, LevelPrediction, StereoEvidence, VortxBatch
+from .stereo_evidence import EVIDENCE_CHANNELS, fused_tsdf, prior_logits, view_evidence
 from .unet3d import SparseUNet
 from .view_encoding import ViewDirectionEncoder
 

@@ -13,17 +13,25 @@ visibility test of view selection (0 <= u < W).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Optional
 
 import cv2
 import numpy as np
 
+from ..capture.images import load_resized, resized_size
 from ..geometry.cameras import camera_to_pixels, scale_intrinsics, world_to_camera
 from ..geometry.depth_render import NEAR_PLANE, render_depth
+from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
+
+if TYPE_CHECKING:
+    from .plan import ReconPlan
+    from .settings import ReconSettings
 
 UNSEEN_GREY = 0.5
 MIN_COSINE = 0.1  # views at more than ~84 deg from the normal are too grazing to trust
 DEPTH_LONG_SIDE = 160  # occlusion z-buffer resolution (long side, pixels)
+COLOUR_LONG_SIDE = 320  # photos are sampled for colour at (at most) this size: vertices are 4 cm apart
 
 
 @dataclass
@@ -124,3 +132,28 @@ def colour_vertices(mesh: Mesh, views: list[ColourView], tolerance: float) -> np
     seen = weight > 0
     colours[seen] = total[seen] / weight[seen, None]
     return colours.astype(np.float32)
+
+
+def colour_mesh(
+    mesh: Mesh,
+    plan: "ReconPlan",
+    settings: "ReconSettings",
+    progress: Optional[ProgressCallback],
+    cancel: Optional[CancelToken],
+) -> np.ndarray:
+    """Vertex colours (V, 3) float32 from up to `settings.colour_views` evenly spaced keyframes."""
+    if not settings.colour or settings.colour_views < 1:
+        return np.full((len(mesh.vertices), 3), 0.5, np.float32)
+    count = min(settings.colour_views, len(plan.keyframes))
+    picks = np.unique(np.round(np.linspace(0, len(plan.keyframes) - 1, count)).astype(np.int64))
+    views = []
+    for done, k in enumerate(picks):
+        check(cancel)
+        report(progress, "colour", done, len(picks) + 1)
+        frame = plan.keyframes[k]
+        size = resized_size(frame.width, frame.height, min(COLOUR_LONG_SIDE, max(frame.width, frame.height)))
+        K = scale_intrinsics(plan.Ks[k], (frame.width, frame.height), size)
+        views.append(ColourView(load_resized(frame, size), K, plan.poses[k]))
+    colours = colour_vertices(mesh, views, tolerance=2 * settings.voxel_size)
+    report(progress, "colour", len(picks) + 1, len(picks) + 1)
+    return colours

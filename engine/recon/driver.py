@@ -10,8 +10,7 @@ level's TSDF gives the mesh, coloured from the photos.
 from __future__ import annotations
 
 import time
-from contextlib import contextmanager
-from typing import Any, Iterator, Optional, Sequence
+from typing import Any, Optional, Sequence
 
 import numpy as np
 import torch
@@ -19,45 +18,20 @@ import torch
 from ..capture import Capture
 from ..errors import VortxError
 from ..jobs import CancelToken, ProgressCallback, check, report
-from ..mesh_io import Mesh
 from ..model.outputs import tsdf_from_logits
 from ..model.stereo_evidence import observed_by_prediction
 from ..stereo.depth_maps import DepthMap
 from ..stereo.vertex_evidence import attach_evidence
-from .colour import ColourView, colour_vertices
+from .colour import colour_mesh
 from .features import FeatureCache, encode_keyframes, keyframe_image_size
 from .tile_fusion import SceneStereo, fuse_tile
-from ..geometry.cameras import scale_intrinsics
-from .images import load_resized, resized_size
 from .memory import PeakMemory
 from .mesh import extract_mesh
 from .network import load_network
 from .plan import ReconPlan, plan_reconstruction
-from .recon_result import ReconResult, empty_mesh
+from .recon_result import ReconResult, StageTimer, empty_mesh
 from .settings import LEVEL_SCALES, ReconSettings, level_label
 from .tiles import TileState
-
-COLOUR_LONG_SIDE = 320  # photos are sampled for colour at (at most) this size: vertices are 4 cm apart
-
-
-class StageTimer:
-    """Wall-clock and process-CPU seconds per named stage (stages may repeat; times add up).
-
-    CPU time is recorded too because wall time on a shared machine mostly measures the neighbours.
-    """
-
-    def __init__(self) -> None:
-        self.seconds: dict[str, float] = {}
-        self.cpu_seconds: dict[str, float] = {}
-
-    @contextmanager
-    def stage(self, name: str) -> Iterator[None]:
-        start, cpu_start = time.perf_counter(), time.process_time()
-        try:
-            yield
-        finally:
-            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
-            self.cpu_seconds[name] = self.cpu_seconds.get(name, 0.0) + time.process_time() - cpu_start
 
 
 def empty_scene_message(label: str) -> str:
@@ -321,28 +295,3 @@ def _run_levels(
             return None, empty_scene_message(label)
         coords = previous.coords
     raise AssertionError("unreachable: the loop returns at the fine level")
-
-
-def colour_mesh(
-    mesh: Mesh,
-    plan: ReconPlan,
-    settings: ReconSettings,
-    progress: Optional[ProgressCallback],
-    cancel: Optional[CancelToken],
-) -> np.ndarray:
-    """Vertex colours (V, 3) float32 from up to `settings.colour_views` evenly spaced keyframes."""
-    if not settings.colour or settings.colour_views < 1:
-        return np.full((len(mesh.vertices), 3), 0.5, np.float32)
-    count = min(settings.colour_views, len(plan.keyframes))
-    picks = np.unique(np.round(np.linspace(0, len(plan.keyframes) - 1, count)).astype(np.int64))
-    views = []
-    for done, k in enumerate(picks):
-        check(cancel)
-        report(progress, "colour", done, len(picks) + 1)
-        frame = plan.keyframes[k]
-        size = resized_size(frame.width, frame.height, min(COLOUR_LONG_SIDE, max(frame.width, frame.height)))
-        K = scale_intrinsics(plan.Ks[k], (frame.width, frame.height), size)
-        views.append(ColourView(load_resized(frame, size), K, plan.poses[k]))
-    colours = colour_vertices(mesh, views, tolerance=2 * settings.voxel_size)
-    report(progress, "colour", len(picks) + 1, len(picks) + 1)
-    return colours

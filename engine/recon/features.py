@@ -15,9 +15,9 @@ import numpy as np
 import torch
 
 from ..capture import Frame
+from ..capture.images import load_resized, resized_size
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..geometry.cameras import scale_intrinsics
-from .images import load_resized, resized_size
 
 
 @dataclass

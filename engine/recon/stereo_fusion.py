@@ -18,10 +18,11 @@ from ..jobs import CancelToken, ProgressCallback, check, report
 from ..stereo import StereoOptions, estimate_depth_maps, fuse_depth_maps, stereo_references
 from ..stereo.depth_maps import DepthMap
 from ..stereo.vertex_evidence import attach_evidence
+from .colour import colour_mesh
 from .memory import PeakMemory
 from .mesh import extract_mesh
 from .plan import ReconPlan, plan_reconstruction, posed_frames
-from .recon_result import ReconResult, empty_mesh
+from .recon_result import ReconResult, StageTimer, empty_mesh
 from .settings import ReconSettings
 from .tiles import TileState
 
@@ -108,8 +109,6 @@ def run_stereo_fusion(
     plan: Optional[ReconPlan] = None,
 ) -> ReconResult:
     """Reconstruct a mesh from a posed, metric capture with stereo fusion (see module doc)."""
-    from .driver import StageTimer, colour_mesh  # the VoRTX driver's timer and colouring, shared
-
     timer = StageTimer()
     started, cpu_started = time.perf_counter(), time.process_time()
     stats: dict[str, Any] = {"settings": settings.to_dict(), "model": {"method": "stereo"}, "device": str(device),

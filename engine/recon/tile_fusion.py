@@ -17,7 +17,7 @@ import numpy as np
 import torch
 
 from ..jobs import CancelToken, check
-from ..model.stereo_evidence import StereoEvidence
+from ..model.outputs import StereoEvidence
 from .features import FeatureCache
 
 

@@ -18,7 +18,7 @@ import torch
 from ..capture import Frame
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..geometry.cameras import project_points, scale_intrinsics, world_to_camera
-from ..recon.images import load_resized, resized_size
+from ..capture.images import load_resized, resized_size
 from .options import StereoOptions
 from .source_views import select_sources
 from .sweep import sweep_depth

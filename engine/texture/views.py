@@ -32,7 +32,7 @@ class TextureView:
 
 def _loader(frame: Frame) -> Callable[[], np.ndarray]:
     def load() -> np.ndarray:
-        from ..recon.images import load_resized
+        from ..capture.images import load_resized
 
         return load_resized(frame, (frame.width, frame.height))
 

@@ -31,7 +31,7 @@ import torch.nn.functional as F
 
 from ..geometry.view_selection import select_views, top_up_views
 from ..tsdf.targets import SEEN_LIMIT, occupancy_targets
-from ..model.stereo_evidence import StereoEvidence
+from ..model.outputs import StereoEvidence
 from .augmentation import apply_photometric, sample_photometric
 from .rooms import RoomData
 

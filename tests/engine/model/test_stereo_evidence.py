@@ -13,7 +13,8 @@ import torch
 
 from engine.model.config import StereoEvidenceConfig, VortxConfig
 from engine.model.outputs import VortxBatch, tsdf_from_logits
-from engine.model.stereo_evidence import StereoEvidence, fused_tsdf, view_evidence
+from engine.model.outputs import StereoEvidence
+from engine.model.stereo_evidence import fused_tsdf, view_evidence
 from engine.model.vortx import VortxNet
 from engine.stereo import DepthMap, fuse_depth_maps
 

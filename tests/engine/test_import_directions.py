@@ -1,0 +1,75 @@
+"""Which engine modules may import which: the dependency directions that keep one home per concept.
+
+Read from the source with `ast` (every import counts: module level, inside functions, under
+TYPE_CHECKING), so a lazy import cannot hide a cycle.
+- engine/stereo (plane-sweep depth, fusion internals) sits below engine/recon (the methods built on
+  it): stereo never imports recon. Photo resizing lives in engine/capture/images.py for both.
+- The reconstruction dispatch (recon/driver.py) imports the stereo method (recon/stereo_fusion.py),
+  never the other way round; what both need (the stage timer, vertex colouring) sits below them.
+- The network's input/output dataclasses (model/outputs.py, StereoEvidence among them) sit below the
+  stereo-evidence features (model/stereo_evidence.py).
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ENGINE = Path(__file__).resolve().parents[2] / "engine"
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(ENGINE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+MODULES = {module_name(p): p for p in ENGINE.rglob("*.py")}
+
+
+def imported_modules(name: str) -> set[str]:
+    """The engine modules and packages `name` imports anywhere in its file."""
+    path = MODULES[name]
+    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            submodules = {f"{target}.{alias.name}" for alias in node.names} & MODULES.keys()
+            found |= submodules
+            if len(submodules) < len(node.names):  # names from the module itself, not only its submodules
+                found.add(target)
+        elif isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names}
+    return {m for m in found if m.startswith("engine") and m != name}
+
+
+def test_the_parser_sees_relative_lazy_and_type_checking_imports():
+    # The checks below are only as good as this reading of the source: pin it on known imports.
+    assert "engine.capture.images" in imported_modules("engine.stereo.depth_maps")
+    assert "engine.recon.stereo_fusion" in imported_modules("engine.recon.driver")  # lazy, inside reconstruct()
+    assert "engine.recon.plan" in imported_modules("engine.recon.colour")  # under TYPE_CHECKING
+    assert "engine.model.outputs" in imported_modules("engine.model.stereo_evidence")
+
+
+def test_stereo_never_imports_recon():
+    stereo = [m for m in MODULES if m == "engine.stereo" or m.startswith("engine.stereo.")]
+    assert len(stereo) > 3
+    offending = {m: sorted(i for i in imported_modules(m) if i == "engine.recon" or i.startswith("engine.recon."))
+                 for m in stereo}
+    assert not {m: i for m, i in offending.items() if i}, \
+        "engine/stereo must not import engine/recon: move what both need below them (engine/capture, engine/geometry)"
+
+
+@pytest.mark.parametrize("upper, lower", [
+    ("engine.recon.driver", "engine.recon.stereo_fusion"),
+    ("engine.model.stereo_evidence", "engine.model.outputs"),
+])
+def test_dependency_goes_one_way(upper, lower):
+    assert lower in imported_modules(upper)
+    assert upper not in imported_modules(lower), f"{lower} imports {upper}, which imports it: a cycle"
