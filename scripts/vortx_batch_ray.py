@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -131,8 +132,13 @@ def attempt_error(result: dict[str, Any]) -> Optional[str]:
         return report["error"]
     lines = [line for line in result.get("output_tail", "").splitlines() if line.strip()]
     last = next((line for line in reversed(lines) if line.startswith("error: ")), lines[-1] if lines else "")
-    return f"the capture's process exited with status {result['returncode']} and wrote no report" + (
-        f" ({last.removeprefix('error: ')})" if last else "")
+    code = result["returncode"]
+    if code < 0:
+        how = f"was killed by {signal.Signals(-code).name}" + (
+            " (often the system's out-of-memory killer)" if -code == signal.SIGKILL else "")
+    else:
+        how = f"exited with status {code}"
+    return f"the capture's process {how} and wrote no report" + (f"; its last output: {last}" if last else "")
 
 
 # --- the memory need --------------------------------------------------------------------------------
@@ -169,11 +175,28 @@ def connect(ray: ModuleType, address: str) -> None:
         ray.init(num_cpus=os.cpu_count() or 1, object_store_memory=LOCAL_OBJECT_STORE_BYTES, include_dashboard=False,
                  logging_level="WARNING")
     else:
+        check_reachable(address)
         try:
             ray.init(address=address, logging_level="WARNING")
         except ConnectionError as error:
             raise ClusterError(f"--ray {address}: no Ray cluster answers there ({error}); start one with "
                                "`ray start --head` and pass the address it prints, or use --ray local") from None
+
+
+def check_reachable(address: str, timeout_s: float = 10.0) -> None:
+    """ClusterError unless something listens at HOST:PORT (`ray://` client addresses too): ray.init
+    itself retries a wrong address for minutes without a word."""
+    if address == "auto":  # the cluster this machine belongs to, found by Ray
+        return
+    host, _, port = address.removeprefix("ray://").rpartition(":")
+    if not host or not port.isdigit():
+        raise ClusterError(f"--ray {address}: give the cluster's HOST:PORT (`ray start --head` prints it), "
+                           "'auto' on a machine of the cluster, or 'local'")
+    try:
+        socket.create_connection((host, int(port)), timeout=timeout_s).close()
+    except OSError as error:
+        raise ClusterError(f"--ray {address}: nothing answers there ({error}); start the cluster with "
+                           "`ray start --head` on its first machine and pass the address it prints, or use --ray local") from None
 
 
 class ClusterError(Exception):
@@ -211,26 +234,34 @@ def run_on_ray(args: Namespace, parser: ArgumentParser, jobs: Sequence[Any], eng
         import ray
         from ray import cloudpickle
     except ImportError:
-        print(f"error: --ray needs the ray package in {sys.executable}: pip install ray "
-              "(the version pinned in requirements.txt)", file=sys.stderr, flush=True)
-        return 1
-    # Workers cannot import this module (scripts/ is not on their path): send the task's code itself.
-    cloudpickle.register_pickle_by_value(sys.modules[__name__])
-    interpreter = interpreter_command(script.resolve(), blender_binary)
-    forwarded = forwarded_options(parser, args)
-    tasks = []
-    for job in jobs:
-        need, estimate = memory_need(engine, job, args)
-        tasks.append(CaptureTask(job, capture_command(interpreter, forwarded, job), need, estimate))
+        return fail_all(jobs, f"--ray needs the ray package in {sys.executable}: pip install ray (the version pinned "
+                              "in requirements.txt)", new_report)
     try:
         connect(ray, args.ray)
     except ClusterError as error:
-        print(f"error: {error}", file=sys.stderr, flush=True)
-        return 1
+        return fail_all(jobs, str(error), new_report)
     try:
+        # Workers cannot import this module (scripts/ is not on their path): send the task's code itself.
+        cloudpickle.register_pickle_by_value(sys.modules[__name__])
+        interpreter = interpreter_command(script.resolve(), blender_binary)
+        forwarded = forwarded_options(parser, args)
+        tasks = []
+        for job in jobs:
+            need, estimate = memory_need(engine, job, args)
+            tasks.append(CaptureTask(job, capture_command(interpreter, forwarded, job), need, estimate))
         return _run_tasks(ray, args, tasks, new_report)
     finally:
         ray.shutdown()  # disconnects; a `local` cluster is stopped with it
+
+
+def fail_all(jobs: Sequence[Any], message: str, new_report: Callable[[Any], Any]) -> int:
+    """No cluster to run on: every capture's report says why (step "cluster"); the error printed once."""
+    for job in jobs:
+        report = new_report(job)
+        report.error, report.failed_step = message, "cluster"
+        write_report(job.report, asdict(report))
+    print(f"error: {message}", file=sys.stderr, flush=True)
+    return 1
 
 
 def _run_tasks(ray: ModuleType, args: Namespace, tasks: list[CaptureTask], new_report: Callable[[Any], Any]) -> int:

@@ -53,8 +53,10 @@ def test_a_capture_process_that_died_without_a_report_says_so() -> None:
     from vortx_batch_ray import attempt_error
 
     killed = {"returncode": -9, "report": None, "output_tail": "vortx [3/4] reconstruct: ...\n", "error": None}
-    assert attempt_error(killed) == ("the capture's process exited with status -9 and wrote no report "
-                                     "(vortx [3/4] reconstruct: ...)")
+    assert attempt_error(killed) == ("the capture's process was killed by SIGKILL (often the system's out-of-memory "
+                                     "killer) and wrote no report; its last output: vortx [3/4] reconstruct: ...")
+    crashed = {**killed, "returncode": 1, "output_tail": "Traceback ...\nerror: Blender quit\nvortx bye\n"}
+    assert attempt_error(crashed) == "the capture's process exited with status 1 and wrote no report; its last output: error: Blender quit"
     done = {"returncode": 0, "report": json.dumps({"status": "ok", "error": None}), "output_tail": "", "error": None}
     assert attempt_error(done) is None
 
@@ -105,8 +107,44 @@ def test_three_captures_on_a_two_machine_cluster(rooms: Path, tmp_path: Path, mo
         assert 1.0e9 < cluster_info["memory"]["declared_bytes"] <= NODE_MEMORY
 
     broken = json.loads((out / "broken.report.json").read_text())
-    assert broken["status"] == "failed" and broken["failed_step"] == "import capture" and broken["blend"] is None
+    assert broken["status"] == "failed" and broken["failed_step"] == "import capture" and broken["blend"] is None, broken
     assert "0.jpg" in broken["error"] and "at least 2 are needed" in broken["error"]
     # Both attempts failed the same way (the messages differ only in a Python object's address).
     first, second = broken["cluster"]["errors"]
     assert broken["cluster"]["attempts"] == 2 and second == broken["error"] and "at least 2 are needed" in first
+
+
+@pytest.mark.slow
+def test_a_capture_needing_more_memory_than_any_machine_fails_at_once(rooms: Path, tmp_path: Path, monkeypatch) -> None:
+    """Ray would queue such a task forever; the batch reports it without starting it, with the numbers
+    and what to change."""
+    from ray.cluster_utils import Cluster
+
+    monkeypatch.setenv("BLENDER_USER_RESOURCES", str(tmp_path / "blender-user"))
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "memory": 2**30, "object_store_memory": 80 * 2**20,
+                                                            "include_dashboard": False})
+    try:
+        out = tmp_path / "out"
+        run = subprocess.run([sys.executable, str(BATCH), str(rooms / "kitchen"), str(rooms / "hall"), "--out", str(out),
+                              "--ray", cluster.address, *TINY], capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    finally:
+        cluster.shutdown()
+    assert run.returncode == 1, run.stdout[-3000:] + run.stderr[-3000:]
+    assert sorted(p.name for p in out.iterdir()) == ["hall.report.json", "kitchen.report.json"]  # nothing ran
+    report = json.loads((out / "kitchen.report.json").read_text())
+    assert report["status"] == "failed" and report["failed_step"] == "cluster" and report["cluster"]["attempts"] == 0
+    assert "needs an estimated 1.4 GiB of memory, more than the largest machine of the Ray cluster offers (1.0 GiB)" in report["error"]
+    assert "raise --voxel-size" in report["error"]
+
+
+def test_an_unreachable_cluster_fails_every_capture_with_the_address(rooms: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    run = subprocess.run([sys.executable, str(BATCH), str(rooms), "--out", str(out), "--ray", "127.0.0.1:1", *TINY],
+                         capture_output=True, text=True, timeout=300, cwd=tmp_path,
+                         env=dict(os.environ, BLENDER_USER_RESOURCES=str(tmp_path / "blender-user")))
+    assert run.returncode == 1
+    (error,) = [line for line in run.stderr.splitlines() if line.startswith("error: ")]
+    assert error.startswith("error: --ray 127.0.0.1:1: nothing answers there") and "ray start --head" in error
+    for name in ("broken", "hall", "kitchen"):
+        report = json.loads((out / f"{name}.report.json").read_text())
+        assert report["status"] == "failed" and report["failed_step"] == "cluster" and report["error"] in error
