@@ -146,7 +146,7 @@ def _run_planned(
         "keyframes": len(plan.keyframes),
         "keyframe_ids": list(plan.keyframe_ids),
         "image_size": list(image_size),
-        "bounds": {"min": plan.bounds.minimum.tolist(), "max": plan.bounds.maximum.tolist(), "clipped": list(plan.bounds.clipped)},
+        "bounds": plan.bounds.to_dict(),
         "grid": {"origin": grid.origin.tolist(), "voxel_size": grid.voxel_size, "shape": grid.shape.tolist(),
                  "tiles_per_axis": grid.tiles_per_axis.tolist()},
         "tiles": {"count": len(plan.tiles), "active": len(active),

@@ -21,7 +21,8 @@ from ..stereo.vertex_evidence import attach_evidence
 from .colour import colour_mesh
 from .memory import PeakMemory
 from .mesh import extract_mesh
-from .plan import ReconPlan, plan_reconstruction, posed_frames
+from .plan import ReconPlan, plan_reconstruction, posed_frames, room_size_warning
+from .scene_bounds import evidence_box
 from .recon_result import ReconResult, StageTimer, empty_mesh
 from .settings import ReconSettings
 from .tiles import TileState
@@ -81,8 +82,18 @@ def depth_points_box(maps: list[DepthMap], margin: float, stride: int = 4) -> Op
         points.append((m.pose[:3, :3] @ (rays * z) + m.pose[:3, 3:4]).T)
     if not points:
         return None
-    cloud = np.concatenate(points)
-    return np.percentile(cloud, 0.5, axis=0) - margin, np.percentile(cloud, 99.5, axis=0) + margin
+    lo, hi = evidence_box(np.concatenate(points))
+    return lo - margin, hi + margin
+
+
+def depth_span_warning(plan: ReconPlan, maps: list[DepthMap], max_room_size: tuple[float, float, float]) -> Optional[str]:
+    """The warning when the stereo depths (evidence of surfaces, unlike the frusta) span more than the
+    maximum room size along an axis the plan has not already warned about; None otherwise."""
+    box = depth_points_box(maps, margin=0.0)
+    if box is None:
+        return None
+    exceeds = (box[1] - box[0] > np.asarray(max_room_size, dtype=np.float64)) & ~np.array(plan.bounds.evidence_exceeds)
+    return room_size_warning("the stereo depths", tuple(bool(e) for e in exceeds), max_room_size) if exceeds.any() else None
 
 
 def fusion_grid(plan: ReconPlan, maps: list[DepthMap], voxel_size: float) -> tuple[np.ndarray, tuple[int, int, int]]:
@@ -119,13 +130,15 @@ def run_stereo_fusion(
         with timer.stage("keyframes"):
             plan = plan or plan_reconstruction(capture, settings, progress, cancel)
         stats.update({"keyframes": len(plan.keyframes), "keyframe_ids": list(plan.keyframe_ids),
-                      "bounds": {"min": plan.bounds.minimum.tolist(), "max": plan.bounds.maximum.tolist(),
-                                 "clipped": list(plan.bounds.clipped)},
+                      "bounds": plan.bounds.to_dict(),
                       "tiles": {"count": len(plan.tiles), "active": len(plan.active_tiles)}})
         for tile in plan.active_tiles:
             tile.state = TileState.RUNNING
         with timer.stage("stereo depth"):
             maps = stereo_depth_maps(capture, plan, options, progress, cancel)
+        span_warning = depth_span_warning(plan, maps, settings.max_room_size)
+        if span_warning is not None:
+            plan.warnings.append(span_warning)
         stats["stereo"] = {
             "references": len(maps), "image_size": list(maps[0].depth.shape[::-1]) if maps else [],
             "completeness_mean": round(float(np.mean([m.completeness for m in maps])), 4) if maps else 0.0,

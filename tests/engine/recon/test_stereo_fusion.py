@@ -49,6 +49,8 @@ def test_stereo_method_reconstructs_the_demo_room(demo_posed: Path, tmp_path: Pa
     assert 0.3 < side["stereo"]["completeness_mean"] <= 1.0
     assert {"stereo depth", "TSDF fusion", "mesh", "colour"} <= set(side["timings_s"])
     assert mesh.colors is not None and np.ptp(mesh.colors) > 0.2, "coloured from the photos, not grey"
+    # A 3 m high room: its tilted frusta span more than 6 m in z, its stereo depths do not (no false warning).
+    assert not [w for w in side["warnings"] if "maximum room size" in w], side["warnings"]
 
 
 def test_stereo_method_can_be_cancelled(demo_posed: Path) -> None:
