@@ -9,13 +9,10 @@ each pycolmap call is one long blocking call.
 from __future__ import annotations
 
 import json
-import os
 import shutil
 import queue
 import re
-import signal
 import subprocess
-import sys
 import threading
 from collections import deque
 from pathlib import Path
@@ -25,6 +22,7 @@ import numpy as np
 
 from ..errors import Cancelled, PoseError
 from ..jobs import CancelToken, ProgressCallback, report
+from ..native_worker import child_environment, describe_exit, python_executable
 
 WORKER_SCRIPT = Path(__file__).with_name("sfm_worker.py")
 
@@ -43,23 +41,8 @@ _REGISTERED = re.compile(r"num_reg_frames=(\d+)")
 
 
 def worker_command(job_path: Path) -> list[str]:
-    """The command line that runs the worker with the interpreter running us (Blender's inside Blender)."""
-    return [sys.executable, "-u", str(WORKER_SCRIPT), str(job_path)]
-
-
-def worker_environment() -> dict[str, str]:
-    """Our environment plus our sys.path as PYTHONPATH.
-
-    Inside Blender the extension's wheels (pycolmap, cv2) sit in a folder Blender adds to sys.path
-    at start-up; a bare interpreter would not find them without this.
-    """
-    env = dict(os.environ)
-    paths = [p for p in sys.path if p and os.path.isdir(p)]
-    if env.get("PYTHONPATH"):
-        paths.append(env["PYTHONPATH"])
-    env["PYTHONPATH"] = os.pathsep.join(paths)
-    env["PYTHONUNBUFFERED"] = "1"
-    return env
+    """The command line that runs the worker with our Python (Blender's bundled one inside Blender)."""
+    return [python_executable(), "-u", str(WORKER_SCRIPT), str(job_path)]
 
 
 class _Progress:
@@ -93,16 +76,6 @@ class _Progress:
             self._emit("map", int(m[1]), self._totals.get("map", int(m[1])))
 
 
-def _describe_exit(returncode: int) -> str:
-    if returncode < 0:
-        try:
-            name = signal.Signals(-returncode).name
-        except ValueError:
-            name = f"signal {-returncode}"
-        return f"was killed by {name}"
-    return f"exited with status {returncode}"
-
-
 def run_worker(
     command: Sequence[str],
     progress: Optional[ProgressCallback] = None,
@@ -131,7 +104,7 @@ def run_worker(
         text=True,
         encoding="utf-8",
         errors="replace",
-        env=env if env is not None else worker_environment(),
+        env=env if env is not None else child_environment(),
     )
 
     def pump() -> None:
@@ -181,7 +154,7 @@ def run_worker(
             raise PoseError(f"{task} failed: {worker_error}")
         last = "\n".join(tail) or "(no output)"
         raise PoseError(
-            f"{task} crashed: the COLMAP process {_describe_exit(returncode)}. "
+            f"{task} crashed: the COLMAP process {describe_exit(returncode)}. "
             f"Last log lines:\n{last}"
         )
 

@@ -21,15 +21,24 @@ become chart borders, which the bake levels like any other seam.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Optional
 
 import numpy as np
 
 from ..errors import VortxError
+from ..jobs import CancelToken
+from ..native_worker import run_in_child
 
 SMOOTHING_ITERATIONS = 10  # Taubin steps; demo room at 100k faces: none 3,851 charts, 10 -> 1,923, 30 -> 1,681
 TAUBIN = (0.5, -0.53)  # shrink then inflate by these factors each step (Taubin 1995's usual pair)
 PADDING_MARGIN = 1.5  # xatlas's atlas overshoots the resolution by ~1.15-1.5x on rooms: pad that much more
 BLOCK_SIZE = 1.0  # metres; 0.5 m was no faster (10.8 s vs 14.0 s at 100k faces) and made 15 % more charts
+ATLAS_STEP = "texture atlas (xatlas)"
+# Seconds: a fixed start plus per face. Far above what xatlas takes (demo room: 14 s at 100k faces,
+# a limit of 320 s), so only a hang meets it, also on a slow or busy machine.
+ATLAS_TIME_LIMIT_S = (120.0, 2e-3)
+ATLAS_ADVICE = ("Try again; if it fails again, bake with another face budget (Face Budget, --face-budget) or "
+                "texture size, which gives xatlas a different mesh.")
 
 
 @dataclass
@@ -48,44 +57,40 @@ class Atlas:
 
 
 def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None, texture_size: int,
-             padding: int) -> Atlas:
+             padding: int, cancel: Optional[CancelToken] = None) -> Atlas:
     """Charts and packing for a `texture_size` square with `padding` texels between charts.
 
     vertices (V, 3); faces (F, 3); normals (V, 3) or None (unused: charts follow the smoothed surface).
+    xatlas runs in a child process (native_worker.py): a crash or hang there raises NativeStepError
+    and leaves this process, and Blender with it, running.
     """
-    import xatlas
-
     if len(faces) == 0:
         raise VortxError("the mesh has no faces, so there is nothing to texture")
     faces = np.asarray(faces, np.int64)
     smoothed = smooth_positions(np.asarray(vertices, np.float64), faces, SMOOTHING_ITERATIONS).astype(np.float32)
     blocks = face_blocks(np.asarray(vertices, np.float64), faces, BLOCK_SIZE)
-    atlas, block_vertices = _generate(xatlas, smoothed, faces, blocks, texture_size, padding)
-    if atlas is None:  # e.g. every face of zero area: nothing to lay out
+    layout = run_in_child(ATLAS_STEP, xatlas_layout,
+                          {"positions": smoothed, "faces": faces, "block_faces": np.concatenate(blocks),
+                           "block_ends": np.cumsum([len(block) for block in blocks])},
+                          {"texture_size": int(texture_size), "padding": int(padding)},
+                          time_limit_s=ATLAS_TIME_LIMIT_S[0] + ATLAS_TIME_LIMIT_S[1] * len(faces), cancel=cancel,
+                          advice=ATLAS_ADVICE)
+    if int(layout["charts"]) == 0:  # e.g. every face of zero area: nothing to lay out
         raise VortxError("no UV atlas could be made: the mesh's faces have no area (collapsed or degenerate mesh)")
-    width, height = int(atlas.width), int(atlas.height)
+    width, height = int(layout["width"]), int(layout["height"])
     scale = texture_size / max(width, height, texture_size)  # an atlas larger than the texture is shrunk into it
-    source_parts, uv_parts = [], []
-    atlas_faces = np.empty_like(faces)
-    offset = 0
-    for i, (block, used) in enumerate(zip(blocks, block_vertices)):
-        mapping, block_faces, uvs = atlas[i]
-        source_parts.append(used[mapping.astype(np.int64)])
-        uv_parts.append(uvs)
-        atlas_faces[block] = block_faces.astype(np.int64) + offset
-        offset += len(mapping)
-    source_vertex = np.concatenate(source_parts)
+    source_vertex, atlas_faces = layout["source_vertex"], layout["faces"]
     # xatlas normalises UVs by its own atlas size (width x height texels): back to atlas texels, then
     # into the texture with one factor for both axes, so every chart keeps its shape and density.
-    uvs = np.concatenate(uv_parts) * [width, height] * scale / texture_size
+    uvs = layout["uvs"] * [width, height] * scale / texture_size
     if not np.array_equal(source_vertex[atlas_faces], faces):
         raise VortxError("the UV atlas changed the mesh's faces; the mesh may be degenerate")
     return Atlas(
         source_vertex=source_vertex,
         faces=atlas_faces.astype(np.int32),
         uvs=np.clip(uvs, 0.0, 1.0).astype(np.float32),
-        charts=int(atlas.chart_count),
-        utilisation=float(atlas.utilization),
+        charts=int(layout["charts"]),
+        utilisation=float(layout["utilisation"]),
         padding=float(np.ceil(padding * PADDING_MARGIN) * scale),
     )
 
@@ -116,9 +121,13 @@ def smooth_positions(vertices: np.ndarray, faces: np.ndarray, iterations: int) -
     return x
 
 
-def _generate(xatlas, positions: np.ndarray, faces: np.ndarray, blocks: list[np.ndarray], texture_size: int,
-              padding: int):
-    """-> (xatlas.Atlas, each block's vertex ids), or (None, []) when xatlas lays out nothing.
+def xatlas_layout(positions: np.ndarray, faces: np.ndarray, block_faces: np.ndarray, block_ends: np.ndarray,
+                  texture_size: int, padding: int) -> dict:
+    """xatlas on the blocks (run in the child process: see uv_atlas). positions (V, 3) float32, the
+    smoothed copy; faces (F, 3) int64; block_faces: the face ids of every block one after the other,
+    block_ends: where each block ends in it. -> source_vertex (V', ), faces (F, 3) int64 into the atlas
+    vertices in the input's face order, uvs (V', 2) normalised by xatlas's atlas, its width and height
+    in texels, charts, utilisation (charts 0: xatlas laid out nothing).
 
     xatlas aims its texel density at the resolution but its atlas often comes out larger (demo room:
     2,364 x 2,344 for 2,048, more with many small charts), and a second packing at a density lowered by
@@ -126,6 +135,9 @@ def _generate(xatlas, positions: np.ndarray, faces: np.ndarray, blocks: list[np.
     padding raised by PADDING_MARGIN to cover the usual overshoot; the caller scales the atlas into the
     square (one density, no squeeze) and reports the padding that is left.
     """
+    import xatlas
+
+    blocks = np.split(block_faces, block_ends[:-1])
     atlas = xatlas.Atlas()
     block_vertices = []
     for block in blocks:
@@ -139,10 +151,21 @@ def _generate(xatlas, positions: np.ndarray, faces: np.ndarray, blocks: list[np.
     pack.blockAlign = True
     atlas.generate(xatlas.ChartOptions(), pack)
     if atlas.atlas_count < 1:
-        return None, []
+        return {"charts": 0}
     if atlas.atlas_count > 1:  # not asked for (resolution with automatic density packs into one)
         raise VortxError(f"the UV atlas needed {atlas.atlas_count} textures; use a larger texture size")
-    return atlas, block_vertices
+    source_parts, uv_parts = [], []
+    atlas_faces = np.empty_like(faces)
+    offset = 0
+    for i, (block, used) in enumerate(zip(blocks, block_vertices)):
+        mapping, block_atlas_faces, uvs = atlas[i]
+        source_parts.append(used[mapping.astype(np.int64)])
+        uv_parts.append(uvs)
+        atlas_faces[block] = block_atlas_faces.astype(np.int64) + offset
+        offset += len(mapping)
+    return {"source_vertex": np.concatenate(source_parts), "faces": atlas_faces, "uvs": np.concatenate(uv_parts),
+            "width": int(atlas.width), "height": int(atlas.height), "charts": int(atlas.chart_count),
+            "utilisation": float(atlas.utilization)}
 
 
 def face_blocks(vertices: np.ndarray, faces: np.ndarray, size: float) -> list[np.ndarray]:

@@ -181,7 +181,7 @@ def bake_texture(mesh: Mesh, views: Sequence[TextureView], options: TextureOptio
         mesh = Mesh(mesh.vertices, mesh.faces, vertex_normals(mesh.vertices, mesh.faces), mesh.colors, mesh.attributes)
     started, timings = time.perf_counter(), {}
     report(progress, "texture: atlas", 0, 1)
-    atlas = uv_atlas(mesh.vertices, mesh.faces, mesh.normals, options.texture_size, options.padding)
+    atlas = uv_atlas(mesh.vertices, mesh.faces, mesh.normals, options.texture_size, options.padding, cancel)
     timings["atlas"] = time.perf_counter() - started
     report(progress, "texture: atlas", 1, 1)
     check(cancel)

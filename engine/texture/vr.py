@@ -14,6 +14,7 @@ import numpy as np
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
 from ..meshops import remove_small_pieces
+from ..native_worker import run_in_child
 from ..recon.mesh import compact, vertex_normals
 from .bake import bake_texture
 from .options import TextureOptions
@@ -22,16 +23,43 @@ from .views import TextureView
 
 
 DECIMATE_TRIES = 4
+DECIMATE_STEP = "mesh decimation (fast-simplification)"
+DECIMATE_TIME_LIMIT_S = (120.0, 5e-4)  # seconds: start plus per face; it takes ~1 s per 100k faces, so only a hang meets it
+DECIMATE_ADVICE = "Try again; if it fails again, bake with another face budget (Face Budget, --face-budget)."
 
 
-def decimate(mesh: Mesh, face_budget: int) -> Mesh:
-    """At most `face_budget` faces (0 or a budget above the mesh's faces: the mesh as it is)."""
+def decimate(mesh: Mesh, face_budget: int, cancel: Optional[CancelToken] = None) -> Mesh:
+    """At most `face_budget` faces (0 or a budget above the mesh's faces: the mesh as it is).
+
+    The edge collapses run in a child process (native_worker.py): a crash or hang of the native
+    library raises NativeStepError instead of ending this process (Blender, inside Blender).
+    """
     if face_budget <= 0 or len(mesh.faces) <= face_budget:
         return mesh
-    import fast_simplification
     from scipy.spatial import cKDTree
 
-    points, faces = np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int32)
+    result = run_in_child(DECIMATE_STEP, simplified,
+                          {"points": np.asarray(mesh.vertices, np.float64), "faces": np.asarray(mesh.faces, np.int32)},
+                          {"face_budget": int(face_budget)},
+                          time_limit_s=DECIMATE_TIME_LIMIT_S[0] + DECIMATE_TIME_LIMIT_S[1] * len(mesh.faces),
+                          cancel=cancel, advice=DECIMATE_ADVICE)
+    points, faces = result["points"], result["faces"]
+    vertices = points.astype(np.float32)
+    faces = faces.astype(np.int32)
+    _, nearest = cKDTree(np.asarray(mesh.vertices, np.float64)).query(points)
+
+    def carried(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
+        return None if values is None else np.asarray(values)[nearest]
+
+    return Mesh(vertices=vertices, faces=faces, normals=vertex_normals(vertices, faces), colors=carried(mesh.colors),
+                attributes={k: carried(v) for k, v in mesh.attributes.items()})
+
+
+def simplified(points: np.ndarray, faces: np.ndarray, face_budget: int) -> dict:
+    """Quadric edge collapse (fast-simplification) to at most `face_budget` faces, run in the child
+    process (see decimate). points (V, 3) float64, faces (F, 3) int32 -> {"points", "faces"}."""
+    import fast_simplification
+
     # The collapse order is approximate: small budgets can end above the target (300 -> 505 faces on
     # the demo room), so it is run again on its own result, a few times at most.
     for _ in range(DECIMATE_TRIES):
@@ -44,21 +72,13 @@ def decimate(mesh: Mesh, face_budget: int) -> Mesh:
         points, faces = compact(points, faces)
         if len(faces) <= face_budget:
             break
-    vertices = points.astype(np.float32)
-    faces = faces.astype(np.int32)
-    _, nearest = cKDTree(np.asarray(mesh.vertices, np.float64)).query(points)
-
-    def carried(values: Optional[np.ndarray]) -> Optional[np.ndarray]:
-        return None if values is None else np.asarray(values)[nearest]
-
-    return Mesh(vertices=vertices, faces=faces, normals=vertex_normals(vertices, faces), colors=carried(mesh.colors),
-                attributes={k: carried(v) for k, v in mesh.attributes.items()})
+    return {"points": points, "faces": faces}
 
 
-def vr_mesh(mesh: Mesh, options: TextureOptions) -> tuple[Mesh, dict]:
+def vr_mesh(mesh: Mesh, options: TextureOptions, cancel: Optional[CancelToken] = None) -> tuple[Mesh, dict]:
     """Small pieces dropped, then decimated to the face budget. -> (mesh, stats)."""
     light, pieces = remove_small_pieces(mesh, min_fraction=options.min_piece_fraction)
-    light = decimate(light, options.face_budget)
+    light = decimate(light, options.face_budget, cancel)
     return light, {"faces_in": int(len(mesh.faces)), "pieces_removed": pieces.removed_pieces,
                    "faces_after_pieces": int(len(mesh.faces) - pieces.removed_faces), "faces": int(len(light.faces))}
 
@@ -69,7 +89,7 @@ def textured_result(mesh: Mesh, views: Sequence[TextureView], options: TextureOp
     """The VR preset end to end: `vr_mesh`, then `bake_texture`. -> (textured mesh, stats)."""
     options.validate()
     report(progress, "texture: decimate", 0, 1)
-    light, stats = vr_mesh(mesh, options)
+    light, stats = vr_mesh(mesh, options, cancel)
     report(progress, "texture: decimate", 1, 1)
     check(cancel)
     textured, bake_stats = bake_texture(light, views, options, progress, cancel)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import re
 import shutil
 from pathlib import Path
 from types import SimpleNamespace
@@ -269,6 +270,29 @@ def test_engine_failure_changes_nothing(blender, capture_dir, monkeypatch) -> No
     with pytest.raises(RuntimeError, match="the atlas could not be made"):
         bpy.ops.vortx.bake_texture()
     assert data_state(scene) == before
+
+
+def test_a_crash_of_the_atlas_library_is_reported_and_changes_nothing(blender, capture_dir, monkeypatch) -> None:
+    """xatlas segfaulting (forced here) ends its worker process, not Blender: the bake fails with the step
+    named, the scene keeps its previous texture, and Blender goes on (a second bake works)."""
+    import bpy
+
+    import fixtures_native
+
+    atlas = importlib.import_module(f"{blender.__name__}.engine.texture.atlas")
+    scene, obj = textured_scene(blender, capture_dir)
+    assert bpy.ops.vortx.bake_texture() == {"FINISHED"}
+    scene.vortx.texture_size = 1024
+    before = data_state(scene)
+    monkeypatch.setattr(atlas, "xatlas_layout", fixtures_native.segfault)
+    with pytest.raises(RuntimeError, match=r"texture atlas \(xatlas\) crashed: its worker process was killed by "
+                                           r"SIGSEGV\. Nothing was changed\. Try again") as caught:
+        bpy.ops.vortx.bake_texture()
+    shutil.rmtree(re.search(r"kept in (\S+) for a bug report", str(caught.value))[1])
+    assert data_state(scene) == before and not blender.vortx_blender.jobs.is_busy()
+    monkeypatch.undo()
+    assert bpy.ops.vortx.bake_texture() == {"FINISHED"}
+    assert json.loads(obj["vortx_texture"])["texture_size"] == 1024
 
 
 def test_no_result_or_no_cameras_or_bad_settings_are_refused(blender, capture_dir, empty_scene) -> None:
