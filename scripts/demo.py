@@ -15,7 +15,9 @@
    --no-compare.
 5. F-scores against truth/mesh_gt.ply, side by side with a plain room box: each mesh is moved into
    the truth frame with the same Sim(3) first, then scored with the Atlas metrics (5 cm threshold),
-   trimmed to the space the truth TSDF observed.
+   trimmed to the space the truth TSDF observed, and with the surface metrics
+   (engine/eval/surface_metrics.py: normal agreement, floater share, pieces, area ratio, open
+   boundary per m^2).
 6. The textured result: `engine texture` on the estimated poses -> out/demo.glb (VR preset, 4096 px);
    out/demo_glb.png: the photo of step 3 beside demo.glb imported with Blender's own glTF importer
    and rendered with Cycles from the same camera.
@@ -42,7 +44,8 @@ sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "scripts"))
 
 from engine.capture.writers import write_scannet  # noqa: E402
-from engine.eval import evaluate_mesh, room_box_from_tsdf  # noqa: E402
+from engine.eval import MeshMetrics, evaluate_mesh, room_box_from_tsdf  # noqa: E402
+from engine.eval.surface_metrics import SURFACE_LEGEND, SurfaceMetrics, evaluate_surface, surface_table  # noqa: E402
 from engine.mesh_io import Mesh, read_ply  # noqa: E402
 from engine.poses import Similarity, pose_errors, umeyama  # noqa: E402
 from engine.recon.settings import METHODS, ReconSettings  # noqa: E402
@@ -265,21 +268,28 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
         say(f"wrote {picture} ({Path(photo).name} beside a Workbench render of the mesh from its estimated camera)")
 
         gt_mesh, gt_volume = read_ply(truth / "mesh_gt.ply"), TsdfVolume.load(truth / "tsdf_gt.npz")
-        rows = [(f"{args.method} (default method, the batch run above)", evaluate_mesh(aligned(read_ply(ply), sim), gt_mesh, gt_volume))]
+
+        def scored(name: str, mesh: Mesh) -> tuple[str, MeshMetrics, SurfaceMetrics]:
+            return name, evaluate_mesh(mesh, gt_mesh, gt_volume), evaluate_surface(mesh, gt_mesh, gt_volume)
+
+        rows = [scored(f"{args.method} (default method, the batch run above)", aligned(read_ply(ply), sim))]
         if args.compare:
             other = "vortx" if args.method == "stereo" else "stereo"
             other_ply = out / f"demo_{other}.ply"
             run_reconstruct(posed_dir, other_ply, ["--method", other, "--device", args.device]
                             + (["--weights", args.weights] if args.weights and other == "vortx" else []))
             label = "vortx (shipped appearance-only weights)" if other == "vortx" else "stereo (classical fusion)"
-            rows.append((label, evaluate_mesh(aligned(read_ply(other_ply), sim), gt_mesh, gt_volume)))
+            rows.append(scored(label, aligned(read_ply(other_ply), sim)))
         # The metric's floor: a plain box fitted to the true room, scored the same way.
-        rows.append(("room box fitted to the true walls (baseline)", evaluate_mesh(room_box_from_tsdf(gt_volume), gt_mesh, gt_volume)))
+        rows.append(scored("room box fitted to the true walls (baseline)", room_box_from_tsdf(gt_volume)))
         say("meshes vs truth (moved into the truth frame by the camera-centre Sim(3), trimmed to the space the truth "
             "observed; F-score at 5 cm):")
         say(f"  {'method':<48} {'F':>6} {'prec':>6} {'recall':>6} {'acc cm':>7} {'comp cm':>8}")
-        for name, m in rows:
+        for name, m, _ in rows:
             say(f"  {name:<48} {m.fscore:6.3f} {m.prec:6.3f} {m.recall:6.3f} {100 * m.acc:7.1f} {100 * m.comp:8.1f}")
+        say(f"surface quality, same meshes ({SURFACE_LEGEND}):")
+        for line in surface_table({name: surface for name, _, surface in rows}).splitlines():
+            say("  " + line)
         say(f"F-score {rows[0][1].fscore:.3f} for the default method against {rows[-1][1].fscore:.3f} for the room box")
 
         glb, texture_picture = out / "demo.glb", out / "demo_texture.png"

@@ -1,8 +1,10 @@
 """`python -m engine eval PRED.ply GT.ply|ROOM_DIR [--observed TSDF.npz] [--depth [CAPTURE]] [--json out.json]`.
 
 Prints the Atlas metrics table for the prediction and, with --box-baseline, for the room box fitted
-to the ground truth (the floor a real result must beat). With --depth, also the 2D depth metrics:
-the meshes rendered into the capture's posed frames against their depth maps.
+to the ground truth (the floor a real result must beat), then the surface metrics of the same meshes
+(surface_metrics.py: normal agreement, floater share, pieces, area ratio, open boundary per m^2).
+With --depth, also the 2D depth metrics: the meshes rendered into the capture's posed frames against
+their depth maps.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from ..mesh_io import read_ply
 from ..tsdf.volume import TsdfVolume
 from .depth_metrics import DEPTH_METRIC_NAMES
 from .mesh_metrics import MeshMetrics, evaluate_mesh
+from .surface_metrics import SURFACE_LEGEND, SurfaceMetrics, evaluate_surface, surface_table
 from .room_box import fit_room_box, room_box_from_tsdf
 
 COLUMNS = ("acc", "comp", "prec", "recall", "fscore")
@@ -70,15 +73,22 @@ def run(args: argparse.Namespace) -> int:
     def score(mesh) -> MeshMetrics:
         return evaluate_mesh(mesh, gt, observed, args.threshold, args.down_sample, trim_gt=not args.no_trim_gt)
 
+    def score_surface(mesh) -> SurfaceMetrics:
+        return evaluate_surface(mesh, gt, observed, args.threshold, trim_gt=not args.no_trim_gt)
+
     rows = {args.pred.name: score(pred)}
+    surface_rows = {args.pred.name: score_surface(pred)}
     if args.box_baseline:
         box = room_box_from_tsdf(observed) if observed is not None else fit_room_box(gt.vertices)
         rows["room box baseline"] = score(box)
+        surface_rows["room box baseline"] = score_surface(box)
 
     trimmed = "none" if observed is None else ("prediction" if args.no_trim_gt else "prediction and ground truth")
     print(f"ground truth: {gt_path}   trimmed to observed voxels: {trimmed}")
     print(f"threshold {args.threshold * 100:g} cm, down-sampling {args.down_sample * 100:g} cm")
     print(format_table(rows))
+    print(f"surface ({SURFACE_LEGEND}):")
+    print(surface_table(surface_rows))
     depth_rows = {}
     if depth_views is not None:
         from .depth_metrics import mesh_depth_metrics
@@ -93,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
             "gt": str(gt_path), "observed": str(observed_path) if observed_path else None,
             "threshold": args.threshold, "down_sample": args.down_sample, "trim_gt": not args.no_trim_gt,
             "results": {name: m.as_dict() for name, m in rows.items()},
+            "surface": {name: m.as_dict() for name, m in surface_rows.items()},
             "depth": depth_rows or None,
         }, indent=2))
     return 0

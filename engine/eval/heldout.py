@@ -3,8 +3,10 @@
 For every held-out room (rendered, never used in training): reconstruct it with `engine.recon`
 from its colour frames and poses only, then the Atlas metrics (`engine.eval.evaluate_mesh`, trimmed
 to the observed ground-truth voxels) against `mesh_gt.ply`; the plain room box fitted to the ground
-truth (`engine.eval.room_box_from_tsdf`) is measured the same way as the floor. A weights entry
-whose path is `stereo` scores the classical stereo-fusion method (no network) beside them.
+truth (`engine.eval.room_box_from_tsdf`) is measured the same way as the floor. Beside them, per room
+and as means, the surface metrics (`engine/eval/surface_metrics.py`: normal agreement, floater share,
+pieces, area ratio, open boundary per m^2; the first two trimmed the same way). A weights entry whose path is
+`stereo` scores the classical stereo-fusion method (no network) beside them.
 """
 
 from __future__ import annotations
@@ -19,10 +21,12 @@ import numpy as np
 
 from ..data.room_folders import find_rooms, precompute_room, with_true_poses
 from ..errors import VortxError
+from .surface_metrics import SURFACE_KEYS, surface_cells, surface_headings
 
 DEPTH_EVERY = 4  # frames for the depth metrics: every 4th (10 of a rendered room's 40)
 DEPTH_KEYS = ("AbsRel", "AbsDiff", "r1", "complete")
 STEREO_METHOD = "stereo"  # a --weights PATH that means "the classical stereo method"
+MESH_KEYS = ("acc", "comp", "prec", "recall", "fscore")
 
 
 def evaluate_rooms(
@@ -37,6 +41,7 @@ def evaluate_rooms(
     from ..capture import load_capture
     from ..eval.depth_metrics import capture_depth_views, mesh_depth_metrics
     from ..eval.mesh_metrics import evaluate_mesh
+    from ..eval.surface_metrics import evaluate_surface
     from ..eval.room_box import room_box_from_tsdf
     from ..mesh_io import read_ply, write_ply
     from ..recon import reconstruct
@@ -65,26 +70,34 @@ def evaluate_rooms(
                 settings = ReconSettings(method="vortx", weights=str(path) if path else None, **(recon_overrides or {}))
             t0 = time.time()
             res = reconstruct(capture, settings)
-            m = evaluate_mesh(res.mesh, gt, observed=volume).as_dict() | depth_scores(res.mesh)
+            m = (evaluate_mesh(res.mesh, gt, observed=volume).as_dict() | depth_scores(res.mesh)
+                 | evaluate_surface(res.mesh, gt, observed=volume).as_dict())
             m["seconds"] = round(time.time() - t0, 1)
             m["faces"] = int(len(res.mesh.faces))
             results[label][room.name] = m
             if out_dir is not None:
                 Path(out_dir).mkdir(parents=True, exist_ok=True)
                 write_ply(Path(out_dir) / f"{room.name}_{_slug(label)}.ply", res.mesh.vertices, res.mesh.faces)
-            print(f"{room.name} {label}: F {m['fscore']:.3f} acc {m['acc']:.3f} comp {m['comp']:.3f}", flush=True)
+            print(f"{room.name} {label}: F {m['fscore']:.3f} acc {m['acc']:.3f} comp {m['comp']:.3f} "
+                  f"{_surface_summary(m)}", flush=True)
         if box:
             box_mesh = room_box_from_tsdf(volume)
-            m = evaluate_mesh(box_mesh, gt, observed=volume).as_dict() | depth_scores(box_mesh)
+            m = (evaluate_mesh(box_mesh, gt, observed=volume).as_dict() | depth_scores(box_mesh)
+                 | evaluate_surface(box_mesh, gt, observed=volume).as_dict())
             results["room box"][room.name] = m
-            print(f"{room.name} room box: F {m['fscore']:.3f}", flush=True)
+            print(f"{room.name} room box: F {m['fscore']:.3f} {_surface_summary(m)}", flush=True)
         if out_dir is not None:  # partial results survive an interrupted run
             save_json({"per_room": results}, Path(out_dir) / "metrics_partial.json")
     summary = {}
     for label, per_room in results.items():
-        keys = ("acc", "comp", "prec", "recall", "fscore") + DEPTH_KEYS
+        keys = MESH_KEYS + DEPTH_KEYS + SURFACE_KEYS
         summary[label] = {k: float(np.mean([m[k] for m in per_room.values()])) for k in keys} if per_room else {}
     return {"per_room": results, "mean": summary}
+
+
+def _surface_summary(m: dict) -> str:
+    cells = surface_cells(m)
+    return ", ".join(f"{heading} {cell}" for heading, cell in zip(surface_headings(), cells))
 
 
 def _slug(label: str) -> str:
@@ -92,14 +105,15 @@ def _slug(label: str) -> str:
 
 
 def metrics_table(result: dict) -> str:
-    """Markdown table of the mean metrics."""
-    lines = ["| method | F-score | precision | recall | acc (m) | comp (m) | AbsRel | AbsDiff (m) | r1 | depth complete |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    """Markdown table of the mean metrics (the surface metrics' columns as surface_metrics names them)."""
+    lines = ["| method | F-score | precision | recall | acc (m) | comp (m) | AbsRel | AbsDiff (m) | r1 | depth complete | "
+             + " | ".join(surface_headings()) + " |",
+             "|---|---|---|---|---|---|---|---|---|---|" + "---|" * len(SURFACE_KEYS)]
     for label, m in result["mean"].items():
         if m:
             lines.append(f"| {label} | {m['fscore']:.3f} | {m['prec']:.3f} | {m['recall']:.3f} | "
                          f"{m['acc']:.3f} | {m['comp']:.3f} | {m['AbsRel']:.3f} | {m['AbsDiff']:.3f} | "
-                         f"{m['r1']:.3f} | {m['complete']:.3f} |")
+                         f"{m['r1']:.3f} | {m['complete']:.3f} | " + " | ".join(surface_cells(m)) + " |")
     return "\n".join(lines)
 
 
