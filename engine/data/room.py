@@ -195,6 +195,8 @@ def _repaint_mixed(spec: RoomSpec, rng: np.random.Generator) -> None:
                         list(map(float, np.clip(base * 0.9, 0, 1)))]
             m.detail_strength = float(rng.uniform(0.0, 0.06))
             m.speckle_strength = 0.0
+            if m.pattern == "brick":  # Cycles draws brick mortar at half brightness: lines, not paint
+                m.pattern = "noise"
         elif name.startswith(("furn", "item")) and rng.random() < DARK_OR_GLOSSY_SHARE:
             if rng.random() < 0.5:  # dark: little signal above the sensor noise
                 m.colors = [list(map(float, np.clip(np.asarray(c) * rng.uniform(0.05, 0.15), 0, 1))) for c in m.colors]
