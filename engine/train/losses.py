@@ -17,9 +17,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from ..model.outputs import tsdf_from_logits
 from ..tsdf.targets import projective_occupancy_at_pixels
-
-TSDF_SCALE = 1.05
 
 
 def logt(x: Tensor) -> Tensor:
@@ -63,7 +62,7 @@ def tsdf_loss(logits: Tensor, coords: Tensor, tsdf: Tensor, mask: Tensor) -> Ten
     logits = logits.reshape(-1)
     if not bool(sup.any()):
         return _zero(logits)
-    pred = TSDF_SCALE * torch.tanh(logits[sup].float())
+    pred = tsdf_from_logits(logits[sup].float())  # the network's own rule, as inference reads it
     return F.l1_loss(logt(pred), logt(target[sup].float()))
 
 
