@@ -382,6 +382,7 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
             report.poses = {"source": "structure from motion" if estimated else "given",
                             "refined": bool(args.refine_poses and not estimated), "status": settings.pose_status,
                             "scale_source": settings.scale_source, "scale_description": settings.scale_description,
+                            "scale_relative_sigma": round(float(settings.scale_uncertainty), 4),
                             "metric": bool(settings.poses_metric)}
         report.frames["posed"] = settings.posed_frame_count
     say(next(number), steps, "poses", detail, started)

@@ -40,9 +40,12 @@ WRAP_CHARS = 44  # characters per line of wrapped panel text (the sidebar's defa
 
 
 def scale_text(settings: Any) -> str:
-    """The scale row: metres or not, and what set it."""
+    """The scale row: metres or not, what set it, and its uncertainty when it was estimated."""
     units = "metres" if settings.poses_metric else "arbitrary"
-    return f"{units} ({settings.scale_source})" if settings.scale_source else units
+    if not settings.scale_source:
+        return units
+    sigma = f", +-{100 * settings.scale_uncertainty:.0f} %" if settings.scale_uncertainty > 0 else ""
+    return f"{units} ({settings.scale_source}{sigma})"
 
 
 def _wrapped(layout: Any, text: str, icon: str) -> None:

@@ -60,12 +60,12 @@ def resolve_capture_path(filepath: str, directory: str = "") -> Optional[Path]:
 
 
 def apply_capture(scene: "bpy.types.Scene", capture: Capture, path: os.PathLike | str, pose_status: Optional[str] = None,
-                  scale_source: str = "", scale_description: str = "") -> CaptureApplied:
+                  scale_source: str = "", scale_description: str = "", scale_uncertainty: float = 0.0) -> CaptureApplied:
     """Replace the scene's capture summary, capture cameras and sparse points with `capture`'s.
 
     Raises CaptureError / PoseError (from validation) before changing anything.
     """
-    summary = capture_summary(capture, str(path), pose_status, scale_source, scale_description)
+    summary = capture_summary(capture, str(path), pose_status, scale_source, scale_description, scale_uncertainty)
     plan = plan_capture_cameras(capture)
     points, colours = checked_points(capture.points, capture.point_colors)
     cameras = apply_camera_plan(scene, plan)
@@ -79,7 +79,8 @@ def apply_prepared(scene: "bpy.types.Scene", prepared: PreparedCapture, path: os
     sparse points (SfM's, the refinement's or the capture's own, moved to the prepared world)."""
     capture = prepared.capture.with_points(prepared.points, prepared.point_colors)
     return apply_capture(scene, capture, path, pose_status=prepared.pose_status(),
-                         scale_source=prepared.scale_source, scale_description=prepared.description)
+                         scale_source=prepared.scale_source, scale_description=prepared.description,
+                         scale_uncertainty=prepared.scale.relative_sigma if prepared.scale is not None else 0.0)
 
 
 def scene_camera_height(settings: object) -> float:

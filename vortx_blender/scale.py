@@ -113,6 +113,7 @@ def set_scale(scene: "bpy.types.Scene", picked: list[PickedPoint], metres: float
     settings.pose_status = prepared.pose_status()
     settings.scale_source = KNOWN_DISTANCE
     settings.scale_description = description
+    settings.scale_uncertainty = 0.0  # the user's measurement: taken as exact
     return ScaleChange(factor, before, float(metres), description)
 
 

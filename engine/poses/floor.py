@@ -77,10 +77,14 @@ def find_floor_plane(
     points: Optional[np.ndarray],
     camera_centres: np.ndarray,
     seed: int = 0,
+    reject_orbited: bool = True,
 ) -> FloorSearch:
     """Find the floor in `points` (N, 3) under cameras at `camera_centres` (M, 3), Z roughly up.
 
-    Deterministic for a given `seed`. Never raises on poor input: `FloorSearch.plane` is None and
+    `reject_orbited=False` keeps small planes inside the ring of cameras: the ceiling search
+    (scale.py, the world turned upside down) has no table to mistake, and a ceiling's sparse points
+    are often too thin for the footprint grid. Deterministic for a given `seed`. Never raises on
+    poor input: `FloorSearch.plane` is None and
     `reason` says why (too few points below the cameras, no horizontal plane under them, ...).
     """
     if points is None or len(points) == 0:
@@ -117,7 +121,7 @@ def find_floor_plane(
         # Twice the band: the noisy tails of a plane must not come back as a plane of their own.
         remaining = remaining[np.abs(remaining @ normal - offset) >= 2.0 * band]
 
-    accepted = _distinct([p for p in planes if _is_floor(p, below)])
+    accepted = _distinct([p for p in planes if _is_floor(p, below, reject_orbited)])
     if not accepted:
         if not planes:
             reason = f"no horizontal plane among the {len(below)} points below the cameras"
@@ -131,10 +135,10 @@ def find_floor_plane(
     return FloorSearch(lowest, len(below), "")
 
 
-def _is_floor(plane: FloorPlane, below: np.ndarray) -> bool:
+def _is_floor(plane: FloorPlane, below: np.ndarray, reject_orbited: bool = True) -> bool:
     if plane.inliers < MIN_FLOOR_INLIERS or plane.inlier_share < MIN_INLIER_SHARE:
         return False
-    if plane.orbited:
+    if plane.orbited and reject_orbited:
         return False
     clearly_below = float((plane.heights(below) < -3.0 * plane.band).mean())
     return clearly_below <= MAX_SHARE_BELOW

@@ -34,6 +34,7 @@ from .refine import STATUS_NOT_REFINED, STATUS_REFUSED
 
 if TYPE_CHECKING:
     from .refine import RefineOptions, RefineResult
+    from .scale import ScaleEstimate
     from .sfm import PoseResult, SfmOptions
 
 # When structure from motion runs.
@@ -64,6 +65,9 @@ class PreparedCapture:
     points: Optional[np.ndarray] = None
     point_colors: Optional[np.ndarray] = None
     notes: list[str] = field(default_factory=list)  # what was done that is no problem (refinement not needed)
+    # The metric scale from the floor and ceiling (scale.py) when the camera-height guess was replaced
+    # by it; scale_source is then its source ("floor and ceiling", ...).
+    scale: Optional["ScaleEstimate"] = None
 
     @property
     def ran_sfm(self) -> bool:
@@ -74,7 +78,8 @@ class PreparedCapture:
         """What the entry points print (CLI) or log (Blender console): the SfM report when SfM ran,
         else the one-line description of the world."""
         if self.sfm is not None:
-            return self.sfm.report.splitlines() + [f"note: {n}" for n in self.notes]
+            scale = [f"  scale: {self.scale.describe()}"] if self.scale is not None else []
+            return self.sfm.report.splitlines() + scale + [f"note: {n}" for n in self.notes]
         lines = self.refinement.report.splitlines() if self.refinement is not None else []
         return lines + [f"poses: {self.description}"] + [f"note: {n}" for n in self.notes]
 
@@ -98,6 +103,8 @@ class PreparedCapture:
                        "description": self.description, "warnings": list(self.warnings), "notes": list(self.notes)}
         if self.refinement is not None:
             entry["refinement"] = refinement_summary(self.refinement)
+        if self.scale is not None:
+            entry["scale"] = self.scale.summary()
         return entry
 
     def pose_status(self) -> str:
@@ -111,6 +118,8 @@ class PreparedCapture:
             "known distance": "scaled by a known distance",
             "metric capture": "metric",
         }.get(self.scale_source, "scale unknown")
+        if self.scale is not None:
+            scale = f"scaled by the {self.scale.source}, +-{100 * self.scale.relative_sigma:.0f} %"
         if self.ran_sfm:
             return f"{posed} of {total} posed by SfM, {scale}"
         status = f"All {total} posed ({capture.format})" if posed == total else f"{posed} of {total} posed ({capture.format})"
@@ -144,6 +153,8 @@ def prepare_capture(
     posed = bool(capture.posed_frames)
     if sfm == SFM_ALWAYS or (sfm == SFM_IF_UNPOSED and not posed):
         prepared = _with_sfm(capture, camera_height, known_distance, sfm_options, progress, cancel)
+        # Photos only: the camera-height guess is replaced by the floor and ceiling, found in dense depth.
+        prepared = _with_metric_scale(prepared, camera_height, dense=True, progress=progress, cancel=cancel)
         if refine:
             prepared.notes.append(REFINE_AFTER_SFM_NOTE)
         return prepared
@@ -167,9 +178,12 @@ def prepare_capture(
                                         points=points)
     warnings = (list(refinement.warnings) if refinement is not None else []) + list(alignment.warnings)
     aligned = alignment.capture.with_points(alignment.points, colors)
-    return PreparedCapture(aligned, alignment.scale_source, alignment.description, warnings,
-                           similarity=alignment.similarity, refinement=refinement, points=alignment.points,
-                           point_colors=colors)
+    prepared = PreparedCapture(aligned, alignment.scale_source, alignment.description, warnings,
+                               similarity=alignment.similarity, refinement=refinement, points=alignment.points,
+                               point_colors=colors)
+    # Given non-metric poses (a COLMAP model): the floor and ceiling in its sparse points only, so
+    # importing a capture stays quick.
+    return _with_metric_scale(prepared, camera_height, dense=False, progress=progress, cancel=cancel)
 
 
 REFINE_AFTER_SFM_NOTE = ("pose refinement skipped: structure from motion estimated these poses just now and its "
@@ -213,3 +227,33 @@ def _with_sfm(
     capture = result.capture.with_points(result.points, result.point_colors)  # not the given capture's old points
     return PreparedCapture(capture, alignment.scale_source, alignment.description, list(result.warnings), sfm=result,
                            points=result.points, point_colors=result.point_colors)
+
+
+def _with_metric_scale(
+    prepared: PreparedCapture,
+    camera_height: float,
+    dense: bool,
+    progress: Optional[ProgressCallback],
+    cancel: Optional[CancelToken],
+) -> PreparedCapture:
+    """`prepared` rescaled by the floor and ceiling (scale.py) when the camera-height guess set its
+    scale; a known distance, a metric capture or an unknown scale stay as they are."""
+    if prepared.scale_source != "camera height":
+        return prepared
+    from .gravity import rescale_capture
+    from .scale import SOURCE_GUESS, estimate_metric_scale
+
+    estimate = estimate_metric_scale(prepared.capture, prepared.points, camera_height, dense=dense, progress=progress,
+                                     cancel=cancel)
+    rescaled = rescale_capture(prepared.capture, estimate.factor, prepared.points)
+    prepared.capture, prepared.points = rescaled.capture, rescaled.points
+    if prepared.similarity is not None:
+        prepared.similarity = prepared.similarity.then(Similarity(np.eye(3), np.zeros(3), estimate.factor))
+    prepared.scale, prepared.scale_source = estimate, estimate.source
+    prepared.description = f"{estimate.describe()}; {prepared.description}"
+    if estimate.source == SOURCE_GUESS and not any("no floor" in w for w in prepared.warnings):
+        prepared.warnings.append(f"no floor seen, so the scale is the {camera_height:g} m camera-height guess "
+                                 f"(+-{100 * estimate.relative_sigma:.0f} %): check a size, or set the scale from a "
+                                 "known distance (Set Scale, --known-distance)")
+    prepared.notes.extend(estimate.notes)
+    return prepared
