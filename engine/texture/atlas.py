@@ -67,10 +67,15 @@ def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None
     if len(faces) == 0:
         raise VortxError("the mesh has no faces, so there is nothing to texture")
     faces = np.asarray(faces, np.int64)
+    # NaN positions become NaN UVs, on which xatlas's packing loops forever (xatlas issue #54).
+    if not np.isfinite(np.asarray(vertices)[np.unique(faces)]).all():
+        raise VortxError("the mesh has vertices at NaN or infinite positions, so no UV atlas can be made: "
+                         "remove them (Blender: Mesh > Clean Up) or reconstruct again")
     smoothed = smooth_positions(np.asarray(vertices, np.float64), faces, SMOOTHING_ITERATIONS).astype(np.float32)
     blocks = face_blocks(np.asarray(vertices, np.float64), faces, BLOCK_SIZE)
+    split_faces, split_source = manifold_faces(faces, len(vertices))
     layout = run_in_child(ATLAS_STEP, xatlas_layout,
-                          {"positions": smoothed, "faces": faces, "block_faces": np.concatenate(blocks),
+                          {"positions": smoothed[split_source], "faces": split_faces, "block_faces": np.concatenate(blocks),
                            "block_ends": np.cumsum([len(block) for block in blocks])},
                           {"texture_size": int(texture_size), "padding": int(padding)},
                           time_limit_s=ATLAS_TIME_LIMIT_S[0] + ATLAS_TIME_LIMIT_S[1] * len(faces), cancel=cancel,
@@ -79,7 +84,7 @@ def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None
         raise VortxError("no UV atlas could be made: the mesh's faces have no area (collapsed or degenerate mesh)")
     width, height = int(layout["width"]), int(layout["height"])
     scale = texture_size / max(width, height, texture_size)  # an atlas larger than the texture is shrunk into it
-    source_vertex, atlas_faces = layout["source_vertex"], layout["faces"]
+    source_vertex, atlas_faces = split_source[layout["source_vertex"]], layout["faces"]
     # xatlas normalises UVs by its own atlas size (width x height texels): back to atlas texels, then
     # into the texture with one factor for both axes, so every chart keeps its shape and density.
     uvs = layout["uvs"] * [width, height] * scale / texture_size
@@ -166,6 +171,44 @@ def xatlas_layout(positions: np.ndarray, faces: np.ndarray, block_faces: np.ndar
     return {"source_vertex": np.concatenate(source_parts), "faces": atlas_faces, "uvs": np.concatenate(uv_parts),
             "width": int(atlas.width), "height": int(atlas.height), "charts": int(atlas.chart_count),
             "utilisation": float(atlas.utilization)}
+
+
+def manifold_faces(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.ndarray]:
+    """The faces with every edge in at most two faces, wound opposite ways, as xatlas's half-edge mesh
+    needs. -> (faces (F, 3) int64 into the split vertices, source (V', ) int64: the input vertex each
+    split vertex copies; the first vertex_count are the input's own).
+
+    A face that would be the third on an edge, or the second with the same direction (a fold), gets
+    three vertices of its own: it becomes a chart by itself, the rest keep their neighbours.
+    Why: xatlas's charting walks a half-edge mesh, which its author says only works for manifold
+    input (xatlas issue #3), and it does not check. The batch VR test's mesh, on which xatlas
+    segfaulted once in ~15-20 runs, is the same in every run (seeded) and has 16 edges in 3-4 faces
+    and 23 folded edges (29 of its 283 faces; edge collapses leave them). The crash did not come back
+    in 1,400 xatlas runs on that exact input (alone, and beside bpy and busy torch threads), so it
+    depends on xatlas's thread timing too; these faces are the part of the input that breaks xatlas's
+    assumptions, so they no longer reach it (135 charts instead of 128 there).
+    """
+    count = len(faces)
+    directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    face_of = np.tile(np.arange(count), 3)
+    undirected = np.sort(directed, axis=1)
+    order = np.lexsort((face_of, undirected[:, 1], undirected[:, 0]))  # by edge, then face order
+    edges = undirected[order]
+    starts = np.r_[True, (edges[1:] != edges[:-1]).any(axis=1)]
+    first = np.maximum.accumulate(np.where(starts, np.arange(len(edges)), 0))  # each row's edge's first row
+    rank = np.arange(len(edges)) - first  # 0: the edge's first face, 1: its second, ...
+    forward = directed[order][:, 0] == edges[:, 0]
+    # Conservative: one pass, so a face after a removed one may go too; every kept edge is manifold.
+    conflict = (rank >= 2) | ((rank == 1) & (forward == forward[first]))
+    apart = np.zeros(count, bool)
+    apart[face_of[order][conflict]] = True
+    faces = faces.copy()
+    source = np.arange(vertex_count, dtype=np.int64)
+    if apart.any():
+        own = faces[apart]
+        faces[apart] = vertex_count + np.arange(own.size).reshape(-1, 3)
+        source = np.concatenate([source, own.reshape(-1)])
+    return faces, source
 
 
 def face_blocks(vertices: np.ndarray, faces: np.ndarray, size: float) -> list[np.ndarray]:

@@ -2,11 +2,14 @@
 is printed after loading and recorded in the sidecar ("capture_warnings"), and the mesh is made from
 the other photos. The capture is the synthetic box room in the ScanNet layout (9 views), one PNG cut
 to half its bytes as an interrupted copy leaves it; tiny settings with a seeded random network
-(test_driver.py's numbers) keep the run to seconds."""
+(test_driver.py's numbers) keep the run to seconds. A textured result whose atlas step crashes (xatlas's
+worker process segfaulting, forced) fails with the step named and keeps the PLY written before it."""
 
 from __future__ import annotations
 
 import json
+import re
+import shutil
 from pathlib import Path
 
 import pytest
@@ -46,3 +49,19 @@ def test_reconstruct_skips_a_corrupt_photo_and_says_so(capture_with_a_corrupt_ph
     assert not sidecar["poses"]["refined"]
     assert mesh.stat().st_size > 0
 
+
+def test_a_crashing_atlas_fails_the_textured_result_and_keeps_the_ply(capture_with_a_corrupt_photo, tmp_path, capsys,
+                                                                       monkeypatch):
+    import fixtures_native
+    from engine.mesh_io import read_ply
+    from engine.texture import atlas
+
+    folder, _ = capture_with_a_corrupt_photo
+    glb = tmp_path / "room.glb"
+    monkeypatch.setattr(atlas, "xatlas_layout", fixtures_native.segfault)
+    assert main(["reconstruct", str(folder), "--out", str(glb), *TINY, "--texture-size", "512", "--face-budget", "300"]) == 1
+    err = capsys.readouterr().err
+    assert "error: texture atlas (xatlas) crashed: its worker process was killed by SIGSEGV" in err
+    assert f"(the untextured mesh is in {glb.with_suffix('.ply')})" in err
+    shutil.rmtree(re.search(r"kept in (\S+) for a bug report", err)[1])
+    assert not glb.exists() and len(read_ply(glb.with_suffix(".ply")).faces) > 0  # this process lived on to say so

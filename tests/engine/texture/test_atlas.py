@@ -72,3 +72,40 @@ def test_the_atlas_fills_the_texture_at_one_density():
         area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
         ratio = uv_area / area
         assert ratio.max() / ratio.min() < 1.2
+
+
+def fins_and_folds():
+    """A strip of 4 quads plus a fin (a third face on an inner edge) and a folded face (an edge's
+    second face wound the same way as its first), as edge collapses leave them."""
+    vertices = np.float32([[x, 0, z] for z in (0, 1) for x in range(5)] + [[1, 1, 0.5], [2, -1, 0.5]])
+    strip = [[0, 1, 6], [0, 6, 5], [1, 2, 7], [1, 7, 6], [2, 3, 8], [2, 8, 7], [3, 4, 9], [3, 9, 8]]
+    fin, fold = [1, 6, 10], [2, 8, 11]  # edge 1-6 gets a third face; 2->8 runs the way 2 8 7 runs it
+    return vertices, np.int32(strip + [fin, fold])
+
+
+def test_edges_in_more_than_two_faces_and_folds_are_cut_apart_for_xatlas():
+    from engine.texture.atlas import manifold_faces
+
+    vertices, faces = fins_and_folds()
+    split, source = manifold_faces(faces.astype(np.int64), len(vertices))
+    np.testing.assert_array_equal(source[split], faces)  # the same triangles, some on vertex copies
+    directed = np.concatenate([split[:, [0, 1]], split[:, [1, 2]], split[:, [2, 0]]])
+    assert len(np.unique(directed, axis=0)) == len(directed)  # no edge twice the same way
+    _, uses = np.unique(np.sort(directed, axis=1), axis=0, return_counts=True)
+    assert uses.max() == 2
+    assert (split[:8] == faces[:8]).all() and (split[8:] >= len(vertices)).all()  # only fin and fold moved
+
+    atlas = uv_atlas(vertices, faces, None, texture_size=512, padding=2)
+    np.testing.assert_array_equal(atlas.source_vertex[atlas.faces], faces)
+    uv_tri = atlas.uvs[atlas.faces].astype(np.float64) * 512
+    area = 0.5 * np.abs(np.cross(uv_tri[:, 1] - uv_tri[:, 0], uv_tri[:, 2] - uv_tri[:, 0]))
+    assert (area > 0).all()  # the fin and the fold get texels of their own
+    covered = len(rasterise_uv(atlas.uvs, atlas.faces, (512, 512)))
+    assert covered == pytest.approx(area.sum(), rel=0.05)  # and overlap nothing
+
+
+def test_nan_positions_are_refused_with_what_to_do():
+    vertices, faces = box(2)
+    vertices[3] = np.nan
+    with pytest.raises(VortxError, match=r"NaN or infinite positions.*Clean Up"):
+        uv_atlas(vertices, faces, None, texture_size=512, padding=2)
