@@ -10,7 +10,8 @@ capture's .blend, mesh file and JSON report are written by the code the sequenti
 
 Each task declares the memory its capture needs (`engine.recon.memory_estimate.estimate_capture_memory`:
 the capture's keyframes, scene bounds and image size under this run's settings, plus the Blender
-process and, with --vr, the texture bake), so Ray starts no more captures on a machine than its
+process and, with --vr, the texture bake; the driver loads each capture for it, which extracts a
+video's frames into its cache), so Ray starts no more captures on a machine than its
 memory holds; a capture needing more than the largest machine offers fails at once with the
 numbers. A failed capture (the script failed, its process or worker died, its machine left the
 cluster) is run once more, then reported: its report says so under "cluster" (address, node,
@@ -172,8 +173,8 @@ def connect(ray: ModuleType, address: str) -> None:
     """Join the cluster at `address`, or start one of this machine alone (`local`): every core, a
     small object store (tasks pass only a command line and a report), no dashboard."""
     if address == LOCAL:
-        ray.init(num_cpus=os.cpu_count() or 1, object_store_memory=LOCAL_OBJECT_STORE_BYTES, include_dashboard=False,
-                 logging_level="WARNING")
+        ray.init(num_cpus=len(os.sched_getaffinity(0)), object_store_memory=LOCAL_OBJECT_STORE_BYTES,
+                 include_dashboard=False, logging_level="WARNING")
     else:
         check_reachable(address)
         try:
@@ -269,7 +270,7 @@ def _run_tasks(ray: ModuleType, args: Namespace, tasks: list[CaptureTask], new_r
     largest = largest_node_memory(ray)
     cwd = os.getcwd()
     address = args.ray if args.ray == LOCAL else ray.get_runtime_context().gcs_address
-    print(f"vortx batch on Ray ({address}): {len(tasks)} captures, {len(ray.nodes())} machines, "
+    print(f"vortx batch on Ray ({address}): {len(tasks)} capture(s), {len(ray.nodes())} machine(s), "
           f"largest {largest / GIB:.1f} GiB", flush=True)
     pending: dict[Any, CaptureTask] = {}
     failed: list[str] = []
@@ -325,6 +326,7 @@ def _run_tasks(ray: ModuleType, args: Namespace, tasks: list[CaptureTask], new_r
             submit(task)
         else:
             finish(task, result, started)
+    folder = args.out.parent if args.single else args.out
     print(f"vortx batch: {len(tasks) - len(failed)} of {len(tasks)} captures reconstructed"
-          + (f"; failed: {', '.join(failed)}" if failed else "") + f"; reports in {args.out}", flush=True)
+          + (f"; failed: {', '.join(failed)}" if failed else "") + f"; reports in {folder}", flush=True)
     return 1 if failed else 0
