@@ -34,7 +34,7 @@ from build_extension import build  # noqa: E402  (scripts/ is not a package)
 
 DEFAULT_PHOTOS = CHECKOUT / "samples" / "demo_room" / "images"
 DRIVER = CHECKOUT / "scripts" / "gui_workflow_blender.py"
-SCREEN = "1600x1000x24"
+SCREEN = "1600x1300x24"  # tall enough for the VoRTX sidebar with its panels open
 # Inside the chroot: a clean environment, the software GL that Xvfb needs.
 CHROOT_ENV = ["env", "-i", "HOME=/root", "PATH=/usr/local/bin:/usr/bin:/bin", "LANG=C.UTF-8", "LIBGL_ALWAYS_SOFTWARE=1"]
 INSTALL_PACKAGES = """\
@@ -60,7 +60,8 @@ def default_root() -> Path:
 def check_root(root: Path) -> None:
     """GuiUnavailable naming what is missing for a GUI run in `root`."""
     needed = ("usr/bin/blender", "usr/bin/xvfb-run", "usr/bin/import", "usr/bin/xdotool")
-    absent = [p for p in needed if not (root / p).exists()]
+    # lexists: the root's own links are absolute (/etc/alternatives/...), meaningful inside it only.
+    absent = [p for p in needed if not os.path.lexists(root / p)]
     if absent:
         raise GuiUnavailable(f"no windowed Blender root at {root} (missing {', '.join(absent)}): "
                              "build one with ../shared/tools/gui_blender_setup.sh (as root), then "
@@ -91,7 +92,7 @@ def run_workflow(root: Path, photos: Path = DEFAULT_PHOTOS, shots: Optional[Path
         (work_in_root / "install_packages.py").write_text(INSTALL_PACKAGES)
         zip_inside = inside / "dist" / archive.name
         installed = chroot(root, ["blender", "--command", "extension", "install-file", "-r", "user_default", "-e", str(zip_inside)], 300, log)
-        if installed.returncode != 0 or "Installed" not in installed.stdout:
+        if installed.returncode != 0 or "nstalled \"vortx\"" not in installed.stdout:  # Installed or Reinstalled
             raise RuntimeError(f"installing {archive.name} failed:\n{installed.stdout[-2000:]}{installed.stderr[-2000:]}")
         packages = chroot(root, ["blender", "--background", "--online-mode", "--python", str(inside / "install_packages.py")], 3600, log)
         if "(missing)" in packages.stdout or packages.returncode != 0:

@@ -31,8 +31,8 @@ ADDON = "bl_ext.user_default.vortx"
 # so the screenshots show every panel.
 OPEN_PANELS = ("VORTX_PT_pose_settings", "VORTX_PT_model", "VORTX_PT_stereo", "VORTX_PT_advanced")
 # The settings typed into the panels (small: the run stays a few minutes on two CPU cores).
-VOXEL_SIZE = 0.06
-VIEW_COUNT = 12
+VOXEL_SIZE = 0.08
+VIEW_COUNT = 10
 TEXTURE_SIZE = 1024
 FACE_BUDGET = 40000
 JOB_TIMEOUT_S = 1200
@@ -100,7 +100,32 @@ def redraw() -> None:
         area.tag_redraw()
 
 
-def shot(name: str, what: str, crop_sidebar: bool) -> None:
+def settle():
+    """Draw the window a few times: panels slide to their new places over several redraws when their
+    contents change, and with no mouse moving nothing else asks for those redraws."""
+    for _ in range(4):
+        redraw()
+        with override():
+            bpy.ops.wm.redraw_timer(type="DRAW_WIN_SWAP", iterations=3)
+        yield 0.3
+
+
+def widen_sidebar(pixels: int):
+    """Drag the sidebar's left edge, as a user widens it: its default width cuts the panels' longer
+    lines (the pose and scale summaries, the VR preset)."""
+    window, _, _ = view3d()
+    region = sidebar()
+    x, y = region.x + 2, window.height - (region.y + region.height // 2)
+    subprocess.run(["xdotool", "mousemove", str(x), str(y), "mousedown", "1"], check=True, timeout=30)
+    yield 0.2
+    for step in range(1, 6):
+        subprocess.run(["xdotool", "mousemove", str(x - pixels * step // 5), str(y)], check=True, timeout=30)
+        yield 0.1
+    subprocess.run(["xdotool", "mouseup", "1", "mousemove", "5", "5"], check=True, timeout=30)
+    yield 0.5
+
+
+def shot(name: str, what: str, crop_sidebar: bool) -> None:  # after `yield from settle()`
     """Screenshot of the X display: the VoRTX sidebar (PNG) or the whole window (JPEG)."""
     window, _, _ = view3d()
     path = ARGS.out / (f"{name}.png" if crop_sidebar else f"{name}.jpg")
@@ -162,8 +187,10 @@ def workflow():
     redraw()
     yield 1.0
     yield from show_vortx_tab()
-    redraw()
-    yield 1.0
+    narrow = sidebar().width
+    yield from widen_sidebar(180)
+    yield from settle()
+    check(sidebar().width > narrow + 100, f"the sidebar was widened by dragging its edge ({narrow} -> {sidebar().width} px)")
     check(sidebar().active_panel_category == "VoRTX", f"the sidebar shows the VoRTX tab ({sidebar().active_panel_category})")
     dependencies = addon("vortx_blender.dependencies")
     missing = [s.describe() for s in dependencies.status(refresh=True) if s.needs_install]
@@ -180,8 +207,7 @@ def workflow():
     check(outcome == {"FINISHED"}, f"Import Capture finished ({outcome})")
     check(settings.frame_count == len(photos), f"the panel shows {len(photos)} frames ({settings.frame_count})")
     check(settings.posed_frame_count == 0, "the photos have no poses yet")
-    redraw()
-    yield 1.0
+    yield from settle()
     shot("gui_02_imported", "Capture panel after Import Capture", True)
     end()
 
@@ -197,6 +223,9 @@ def workflow():
     check(n_cameras == settings.posed_frame_count, f"one camera per posed photo in the capture collection ({n_cameras})")
     check(bool(settings.scale_source), f"the scale source is shown ({settings.scale_source!r})")
     REPORT["posed"] = settings.posed_frame_count
+    with override():
+        bpy.ops.view3d.view_all()  # the cameras in view, as a user frames them (Home)
+    yield from settle()
     shot("gui_03_posed", "Capture panel after Estimate Poses", True)
     end()
 
@@ -220,7 +249,7 @@ def workflow():
         if counts.get("done", 0) + counts.get("running", 0) >= 1 and not seen_running:
             seen_running = True
             REPORT["tiles_while_running"] = counts
-            yield 0.3
+            yield from settle()
             shot("gui_04_reconstructing", "Reconstruct running: progress in the panel and the tile grid in the viewport", False)
             shot("gui_04_reconstructing_sidebar", "Reconstruction panel while Reconstruct runs", True)
         yield 0.2
@@ -257,8 +286,7 @@ def workflow():
     bpy.context.view_layer.objects.active = result
     with override():
         bpy.ops.view3d.view_selected()
-    redraw()
-    yield 1.0
+    yield from settle()
     shot("gui_05_reconstructed", "the stereo mesh in the viewport (vertex colours) and the VoRTX tab", False)
     shot("gui_05_reconstructed_sidebar", "Reconstruction, Tiles and Result panels after Reconstruct", True)
     end()
@@ -266,8 +294,7 @@ def workflow():
     begin("Show Observation")
     check(results.has_observation(result.data), "the result carries the observation layer")
     setattr(result, results.SHOW_OBSERVATION, True)  # the Result panel's toggle
-    redraw()
-    yield 1.0
+    yield from settle()
     check(results.shown_colour_attribute(result.data) == results.OBSERVATION_ATTRIBUTE,
           f"the viewport shows the observation colours ({results.shown_colour_attribute(result.data)})")
     shot("gui_06_observation", "Show Observation on: the confidence colours", False)
@@ -297,8 +324,8 @@ def workflow():
     for area in window.screen.areas:
         if area.type == "VIEW_3D":
             area.spaces.active.shading.type = "MATERIAL"  # Material Preview: the texture as it renders
-    redraw()
-    yield 3.0
+    yield 2.0
+    yield from settle()
     shot("gui_07_textured", "the baked texture in Material Preview", False)
     shot("gui_07_textured_sidebar", "Result panel after Bake Texture", True)
     end()
