@@ -56,6 +56,7 @@ class CaptureTask:
     memory: dict[str, Any] = field(default_factory=dict)  # the estimate's parts, or why there is none
     attempts: int = 0
     errors: list[str] = field(default_factory=list)  # each failed attempt's reason
+    submitted: Optional[float] = None  # perf_counter() at the first submission
 
 
 # --- the command of one capture --------------------------------------------------------------------
@@ -246,11 +247,12 @@ def run_on_ray(args: Namespace, parser: ArgumentParser, jobs: Sequence[Any], eng
         cloudpickle.register_pickle_by_value(sys.modules[__name__])
         interpreter = interpreter_command(script.resolve(), blender_binary)
         forwarded = forwarded_options(parser, args)
-        tasks = []
-        for job in jobs:
+
+        def plan(job: Any) -> CaptureTask:
             need, estimate = memory_need(engine, job, args)
-            tasks.append(CaptureTask(job, capture_command(interpreter, forwarded, job), need, estimate))
-        return _run_tasks(ray, args, tasks, new_report)
+            return CaptureTask(job, capture_command(interpreter, forwarded, job), need, estimate)
+
+        return _run_tasks(ray, args, jobs, plan, new_report)
     finally:
         ray.shutdown()  # disconnects; a `local` cluster is stopped with it
 
@@ -265,12 +267,15 @@ def fail_all(jobs: Sequence[Any], message: str, new_report: Callable[[Any], Any]
     return 1
 
 
-def _run_tasks(ray: ModuleType, args: Namespace, tasks: list[CaptureTask], new_report: Callable[[Any], Any]) -> int:
+def _run_tasks(ray: ModuleType, args: Namespace, jobs: Sequence[Any], plan: Callable[[Any], CaptureTask],
+               new_report: Callable[[Any], Any]) -> int:
+    """Plan (estimate) and submit each capture in turn, so the first run while later ones are estimated;
+    then collect, run a failed one once more, and report each as it finishes."""
     remote = ray.remote(run_capture_process)
     largest = largest_node_memory(ray)
     cwd = os.getcwd()
     address = args.ray if args.ray == LOCAL else ray.get_runtime_context().gcs_address
-    print(f"vortx batch on Ray ({address}): {len(tasks)} capture(s), {len(ray.nodes())} machine(s), "
+    print(f"vortx batch on Ray ({address}): {len(jobs)} capture(s), {len(ray.nodes())} machine(s), "
           f"largest {largest / GIB:.1f} GiB", flush=True)
     pending: dict[Any, CaptureTask] = {}
     failed: list[str] = []
@@ -278,34 +283,35 @@ def _run_tasks(ray: ModuleType, args: Namespace, tasks: list[CaptureTask], new_r
 
     def submit(task: CaptureTask) -> None:
         task.attempts += 1
+        task.submitted = task.submitted or time.perf_counter()
         ref = remote.options(num_cpus=args.ray_cpus, memory=task.memory_bytes, max_retries=0).remote(
             task.command, str(task.job.report.absolute()), cwd)
         pending[ref] = task
 
-    def finish(task: CaptureTask, result: Optional[dict[str, Any]], started: float) -> None:
+    def finish(task: CaptureTask, result: Optional[dict[str, Any]]) -> None:
         nonlocal finished
         finished += 1
         cluster = {"address": address, "attempts": task.attempts, "memory": task.memory,
                    "node": result.get("node") if result else None, "host": result.get("host") if result else None,
                    "errors": list(task.errors),
-                   "wall_s": round(time.perf_counter() - started, 3)}
+                   "wall_s": round(time.perf_counter() - task.submitted, 3) if task.submitted else 0.0}  # queue + runs
         report = final_report(task, result, new_report, cluster)
         write_report(task.job.report, report)
         if report.get("status") == "ok":
-            print(f"vortx capture {finished}/{len(tasks)} done: {task.job.capture} on {cluster['host']} "
+            print(f"vortx capture {finished}/{len(jobs)} done: {task.job.capture} on {cluster['host']} "
                   f"(attempt {task.attempts})", flush=True)
         else:
             failed.append(str(task.job.capture))
             print(f"error: {task.job.capture}: {report.get('error')}", file=sys.stderr, flush=True)
 
-    started = time.perf_counter()
-    for task in tasks:
+    for job in jobs:
+        task = plan(job)
         if task.memory_bytes > largest:
             task.errors.append(
                 f"needs an estimated {task.memory_bytes / GIB:.1f} GiB of memory, more than the largest machine of the "
                 f"Ray cluster offers ({largest / GIB:.1f} GiB): raise --voxel-size, lower --views or --max-room-size "
                 "(or --texture-size with --vr), or add a machine with more memory")
-            finish(task, None, started)
+            finish(task, None)
         else:
             submit(task)
     while pending:
@@ -317,7 +323,7 @@ def _run_tasks(ray: ModuleType, args: Namespace, tasks: list[CaptureTask], new_r
         except Exception as crash:  # the worker or its machine died (out of memory, node lost)
             result, error = None, f"its Ray task died: {type(crash).__name__}: {' '.join(str(crash).split())[:500]}"
         if error is None:
-            finish(task, result, started)
+            finish(task, result)
             continue
         task.errors.append(error)
         if task.attempts < ATTEMPTS:
@@ -325,8 +331,8 @@ def _run_tasks(ray: ModuleType, args: Namespace, tasks: list[CaptureTask], new_r
                   "running it again", flush=True)
             submit(task)
         else:
-            finish(task, result, started)
+            finish(task, result)
     folder = args.out.parent if args.single else args.out
-    print(f"vortx batch: {len(tasks) - len(failed)} of {len(tasks)} captures reconstructed"
+    print(f"vortx batch: {len(jobs) - len(failed)} of {len(jobs)} captures reconstructed"
           + (f"; failed: {', '.join(failed)}" if failed else "") + f"; reports in {folder}", flush=True)
     return 1 if failed else 0

@@ -148,7 +148,8 @@ def estimate_capture_memory(capture: Any, settings: Any, texture: bool = False,
         kept = select_keyframes(poses, settings.keyframe_translation, settings.keyframe_angle_deg)
         Ks = np.stack([posed[int(k)].K for k in kept]).astype(np.float64)
         sizes = np.array([[posed[int(k)].width, posed[int(k)].height] for k in kept])
-        bounds = scene_bounds(Ks, poses[kept], sizes, settings.frustum_depth, settings.max_room_size)
+        bounds = scene_bounds(Ks, poses[kept], sizes, settings.frustum_depth, settings.max_room_size,
+                              points=prepared.points)  # as plan_reconstruction bounds it
         room, keyframes = tuple(float(s) for s in bounds.size), len(kept)
     else:
         room, keyframes = tuple(float(s) for s in settings.max_room_size), len(frames)
