@@ -93,3 +93,25 @@ def test_a_failing_bake_fails_the_capture_at_the_texture_step(blender, scannet_c
     assert "the texture atlas could not be made" in report["error"]
     assert report["mesh"]["faces"] > 0 and report["texture"] == {}  # the reconstruction itself went through
     assert not out.exists() and not list(tmp_path.glob("*.partial.blend"))
+
+
+def test_a_crash_in_the_atlas_worker_is_recorded_as_the_texture_step_failing(blender, scannet_capture, tmp_path,
+                                                                              monkeypatch) -> None:
+    """xatlas segfaulting (forced) ends only its worker process: the batch records the texture step
+    with the crash's message and goes on to its report."""
+    import re
+    import shutil
+
+    import fixtures_native
+    import vortx_batch
+
+    atlas = importlib.import_module(f"{blender.__name__}.engine.texture.atlas")
+    monkeypatch.setattr(atlas, "xatlas_layout", fixtures_native.segfault)
+    out = tmp_path / "scene.blend"
+    args = vortx_batch.parse_arguments([str(scannet_capture), "--out", str(out), *TINY, *VR])
+    assert vortx_batch.run_all(args, blender, vortx_batch.plan_jobs(args, args.captures)) == 1
+    report = json.loads((tmp_path / "scene.report.json").read_text())
+    assert report["status"] == "failed" and report["failed_step"] == "texture"
+    assert "texture atlas (xatlas) crashed: its worker process was killed by SIGSEGV" in report["error"]
+    shutil.rmtree(re.search(r"kept in (\S+) for a bug report", report["error"])[1])
+    assert not out.exists() and not list(tmp_path.glob("*.partial.blend"))
