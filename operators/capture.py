@@ -12,6 +12,7 @@ from ..vortx_blender.capture import (
     apply_prepared,
     import_capture_job,
     loaded_capture,
+    record_capture_frame,
     remember_loaded_capture,
     resolve_capture_path,
     scene_camera_height,
@@ -61,6 +62,7 @@ class VORTX_OT_import_capture(JobOperatorMixin, bpy.types.Operator):
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: ImportedCapture) -> set[str]:
         prepared = result.prepared
         applied = apply_prepared(scene, prepared, self._path)
+        record_capture_frame(scene, prepared)
         remember_loaded_capture(scene, self._path, result.loaded)
         for line in prepared.report_lines:
             print(line)
@@ -92,6 +94,7 @@ class VORTX_OT_estimate_poses(JobOperatorMixin, bpy.types.Operator):
 
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: PosedCapture) -> set[str]:
         applied = apply_prepared(scene, result.prepared, result.capture_path)
+        record_capture_frame(scene, result.prepared)  # none of its own: SfM made the poses
         remember_loaded_capture(scene, result.capture_path, result.loaded)
         if result.report:
             print(result.report)  # the full SfM report (per-image registration, errors) for the console

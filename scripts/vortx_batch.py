@@ -61,7 +61,7 @@ from _extension_dev import ExtensionLoadError, enable, find_extension, mount_che
 sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
 from engine.poses.camera_height import DEFAULT_CAMERA_HEIGHT_M  # noqa: E402
 from engine.recon.settings import (ReconSettings, add_setting_arguments, given_settings,  # noqa: E402
-                                   refuse_ignored_settings, settings_from_arguments)
+                                   refuse_ignored_settings, refuse_untextured_settings, settings_from_arguments)
 
 EXPORT_SUFFIXES = (".glb", ".gltf", ".ply", ".obj")
 REPORT_SUFFIX = ".report.json"
@@ -127,6 +127,7 @@ def parse_arguments(args: Sequence[str]) -> argparse.Namespace:
     try:
         args.settings.validate()
         refuse_ignored_settings(args.settings, given_settings(args))  # no flag is silently ignored
+        refuse_untextured_settings(given_settings(args), bool(args.vr), "--vr")
     except Exception as error:  # engine.errors.VortxError of this checkout's engine
         parser.error(str(error))
     return args
@@ -385,6 +386,8 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
                             "scale_relative_sigma": round(float(settings.scale_uncertainty), 4),
                             "metric": bool(settings.poses_metric)}
         report.frames["posed"] = settings.posed_frame_count
+        # The similarity between the capture's own coordinates and the result's Z-up world, both ways.
+        report.poses["frame"] = json.loads(settings.capture_frame) if settings.capture_frame else None
     say(next(number), steps, "poses", detail, started)
 
     started = time.perf_counter()

@@ -12,15 +12,20 @@ extract video frames) a second time.
 
 from __future__ import annotations
 
+import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
+import numpy as np
+
 from ..engine import capture as engine_capture
 from ..engine.capture import Capture
 from ..engine.jobs import CancelToken, ProgressCallback
+from ..engine.poses.align import Similarity
 from ..engine.poses.prepare import SFM_NEVER, PreparedCapture, prepare_capture
+from ..engine.recon.output_frame import FRAME_WORLD, frame_record, similarity_from_record, similarity_record
 from .cameras import apply_camera_plan, plan_capture_cameras
 from .jobs import JobFunction
 from .point_cloud import apply_point_cloud, checked_points
@@ -87,6 +92,24 @@ def scene_camera_height(settings: object) -> float:
     """scene.vortx.camera_height in metres as the user typed it: the property is float32 (1.7 reads as
     1.70000005), rounded so the panel, the CLI and the batch script give the same world."""
     return round(float(settings.camera_height), 6)
+
+
+def record_capture_frame(scene: "bpy.types.Scene", prepared: PreparedCapture) -> None:
+    """scene.vortx.capture_frame: the similarity between the capture's own coordinates and the world its
+    cameras were just placed in (`frame_record`, as `engine reconstruct`'s sidecar has it), so the batch
+    report and scripts can map the result back over the capture's cameras."""
+    scene.vortx.capture_frame = json.dumps(frame_record(prepared, FRAME_WORLD))
+
+
+def rescale_capture_frame(settings: object, factor: float) -> None:
+    """scene.vortx.capture_frame after the world was scaled by `factor` about its origin (Set Scale)."""
+    if not settings.capture_frame:
+        return
+    record = json.loads(settings.capture_frame)
+    capture_to_world = similarity_from_record(record["capture_to_world"])
+    if capture_to_world is not None:
+        scaled = capture_to_world.then(Similarity(np.eye(3), np.zeros(3), float(factor)))
+        settings.capture_frame = json.dumps(similarity_record(scaled, FRAME_WORLD, Similarity.identity()))
 
 
 @dataclass(frozen=True)

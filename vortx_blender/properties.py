@@ -144,6 +144,11 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
     )
     skipped_count: IntProperty(name="Skipped Photos", description="Photos left out of the capture because they cannot be used", min=0)
     skipped_names: StringProperty(name="Skipped", description="The first photos left out (the import report names all of them and why)")
+    capture_frame: StringProperty(
+        name="Capture Frame",
+        description="JSON: the similarity between the capture's own coordinates and this Z-up world, both ways "
+                    "(engine/recon/output_frame.py, as in the engine's sidecar); a note when the capture has none",
+    )
 
     # --- reconstruction settings ---
     show_tiles: BoolProperty(

@@ -24,6 +24,7 @@ from ..engine.errors import PoseError
 from ..engine.poses import rescale_capture, scale_from_known_distance
 from ..engine.poses.prepare import PreparedCapture
 from .cameras import PROP_POSE, is_capture_camera, move_capture_cameras, posed_capture_from_scene
+from .capture import rescale_capture_frame
 from .point_cloud import find_point_cloud, scale_point_cloud
 from .result import result_objects
 
@@ -113,6 +114,7 @@ def set_scale(scene: "bpy.types.Scene", picked: list[PickedPoint], metres: float
     settings.pose_status = prepared.pose_status()
     settings.scale_source = KNOWN_DISTANCE
     settings.scale_description = description
+    rescale_capture_frame(settings, factor)  # the capture's own coordinates map to the scaled world
     settings.scale_uncertainty = 0.0  # the user's measurement: taken as exact
     return ScaleChange(factor, before, float(metres), description)
 

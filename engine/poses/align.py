@@ -55,6 +55,20 @@ class Similarity:
             other.scale * self.scale,
         )
 
+    def inverse(self) -> "Similarity":
+        """The similarity that undoes this one: x = (1/s) R^T x_new - (1/s) R^T t."""
+        rotation = self.rotation.T
+        return Similarity(rotation, -(rotation @ self.translation) / self.scale, 1.0 / self.scale)
+
+    def apply_directions(self, directions: np.ndarray) -> np.ndarray:
+        """Directions (N, 3) (normals, view rays) -> (N, 3): only rotated; scale and translation move points."""
+        return np.asarray(directions, dtype=np.float64) @ self.rotation.T
+
+    def to_dict(self) -> dict:
+        """JSON-ready: rotation (3 x 3 rows), translation (3), scale, and the 4 x 4 matrix, x_new = s R x + t."""
+        return {"rotation": self.rotation.tolist(), "translation": self.translation.tolist(), "scale": float(self.scale),
+                "matrix": self.matrix().tolist()}
+
 
 def umeyama(source: np.ndarray, target: np.ndarray, with_scale: bool = True) -> Similarity:
     """Least-squares similarity with target ~ s R source + t (Umeyama 1991).

@@ -55,7 +55,9 @@ class PreparedCapture:
     description: str  # one line: what was done to the world
     warnings: list[str] = field(default_factory=list)
     sfm: Optional["PoseResult"] = None  # the structure-from-motion result when SfM ran (its report, points)
-    # What moved the given posed frames (x_new = s R x + t); None when SfM replaced them or there were none.
+    # What moved the given posed frames from the capture's own frame into this world (x_world = s R x_capture + t),
+    # every step here composed into it (Z up, floor, scale); None when SfM replaced them or there were none.
+    # The one source of the capture <-> world mapping that results record (engine/recon/output_frame.py).
     similarity: Optional[Similarity] = None
     # The refinement of the given poses when it ran (per-frame changes, refused frames, its points in
     # the refined capture's world before the alignment above).

@@ -5,7 +5,9 @@ The capture's own warnings (photos skipped, poses repaired) are printed right af
 
 The sidecar (`mesh.json` beside `mesh.ply`) records what the run did: timings per stage, voxels per
 level, views per tile, tile count, peak memory, the settings, the source capture, its warnings
-("capture_warnings") and what capture preparation did ("poses": source, scale, refinement). When no
+("capture_warnings"), what capture preparation did ("poses": source, scale, refinement) and the mesh's
+coordinates ("frame": `--frame world`, the Z-up floor-at-zero metric world, or `--frame capture`, the
+capture's own; with the similarities capture <-> world <-> output both ways, `output_frame.py`). When no
 surface is found the (empty) mesh and the sidecar are still written, the reason is printed and the
 exit status is 1.
 """
@@ -22,8 +24,9 @@ from ..errors import VortxError
 from ..jobs import TqdmProgress
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import SFM_IF_UNPOSED, PreparedCapture, prepare_capture
+from .output_frame import FRAME_CAPTURE, FRAME_WORLD, FRAMES, frame_record, moved_mesh, world_to_output
 from .settings import (ReconSettings, add_setting_arguments, given_settings, refuse_ignored_settings,
-                       settings_from_arguments)
+                       refuse_untextured_settings, settings_from_arguments)
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb")  # .glb and .obj are textured (engine/texture), .ply has vertex colours
 
@@ -41,6 +44,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's own poses against the photos before reconstructing (for slightly-off "
                              "tracker, ARKit or SLAM poses; the report gives each frame's change)")
+    parser.add_argument("--frame", choices=FRAMES, default=FRAME_WORLD,
+                        help="coordinates of the written mesh: 'world' = Z up, floor at z = 0, metres (what Blender "
+                             "shows); 'capture' = the coordinates and units of the capture's own camera poses "
+                             "(transforms.json, COLMAP), so the mesh lies over those cameras without alignment. The "
+                             "sidecar records the similarity between the capture's frame and the output both ways "
+                             "(default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -75,26 +84,34 @@ def run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     settings.validate()
     refuse_ignored_settings(settings, given_settings(args))  # before the capture loads: an early, clear error
+    refuse_untextured_settings(given_settings(args), out.suffix.lower() != ".ply", "--out room.glb or room.obj")
 
     from ..capture import load_capture
     from .driver import reconstruct
 
     capture = load_capture(args.capture)
+    if args.frame == FRAME_CAPTURE and not capture.posed_frames:  # before structure from motion spends minutes
+        raise VortxError(f"--frame {FRAME_CAPTURE}: {args.capture} has no camera poses of its own, so there are no capture "
+                         f"coordinates to write the mesh in; structure from motion's poses are in the Z-up world "
+                         f"(use --frame {FRAME_WORLD})")
     capture_warnings = list(capture.warnings)
     for warning in capture_warnings:
         print(f"warning: {warning}", file=sys.stderr)
     progress = TqdmProgress(disable=args.quiet)
     try:
         # Photos without poses get structure from motion first, as `python -m engine poses` would.
+        # Given poses that are not refined are checked against the photos: a warning when they look off.
         prepared = prepare_capture(capture, camera_height=args.camera_height, sfm=SFM_IF_UNPOSED,
-                                   refine=args.refine_poses, progress=progress)
+                                   refine=args.refine_poses, progress=progress, check_poses=True)
         report_preparation(prepared)
+        # Reconstructed in the world, written in the frame asked for (output_frame.py).
+        to_output = world_to_output(prepared, args.frame)
         capture = prepared.capture
         result = reconstruct(capture, settings, progress=progress)
         # The full mesh with vertex colours and the confidence layer comes first, as a PLY (beside a
         # textured .glb / .obj too): a bake that fails or is interrupted loses no reconstruction.
         ply = out.with_suffix(".ply")
-        write_mesh(ply, result.mesh)
+        write_mesh(ply, moved_mesh(result.mesh, to_output))
         textured, written = None, [ply]
         if out.suffix.lower() != ".ply":
             out.unlink(missing_ok=True)  # no stale textured file of an earlier run
@@ -109,7 +126,9 @@ def run(args: argparse.Namespace) -> int:
                 except VortxError as error:
                     raise VortxError(f"{error} (the untextured mesh is in {ply})") from error
                 result.stats["texture"] = texture_stats
-                written = write_textured(out, textured, extras={"vortx_settings": settings.to_dict()}) + [ply]
+                frame = frame_record(prepared, args.frame)
+                written = write_textured(out, moved_mesh(textured, to_output),
+                                         extras={"vortx_settings": settings.to_dict(), "vortx_frame": frame}) + [ply]
             else:
                 out = ply
     finally:
@@ -120,6 +139,8 @@ def run(args: argparse.Namespace) -> int:
         "capture_format": capture.format,
         "capture_warnings": capture_warnings,
         "poses": prepared.summary(),
+        # The mesh's frame and the similarities capture <-> world <-> output; bounds and grid below are in the world.
+        "frame": frame_record(prepared, args.frame),
         "output": str(out.resolve()),
         "files": [str(p.resolve()) for p in written],
         **result.stats,

@@ -53,7 +53,8 @@ def setting(default: Any, help: str, expose: tuple[str, ...], *, methods: tuple[
             min: Optional[float] = None,
             max: Optional[float] = None, choices: Optional[tuple[str, ...]] = None, flag: Optional[str] = None,
             blender_name: Optional[str] = None, label: Optional[str] = None, unset: Optional[int] = None,
-            default_text: Optional[str] = None, metavar: Optional[tuple[str, ...]] = None) -> Any:
+            default_text: Optional[str] = None, metavar: Optional[tuple[str, ...]] = None,
+            textured: bool = False) -> Any:
     """A ReconSettings field with what every entry point needs to offer it.
 
     help: one sentence for the CLI help and the Blender tooltip. expose: (CLI, BLENDER), a subset, or
@@ -64,13 +65,14 @@ def setting(default: Any, help: str, expose: tuple[str, ...], *, methods: tuple[
     unset: for an Optional[int] whose None means "automatic", the Blender value that stands for
     None (e.g. 0). default_text: the CLI help's default when the default is not a plain value.
     methods: the reconstruction methods (METHODS, or STEREO_EVIDENCE_WEIGHTS) that read the setting.
+    textured: read only when a textured result is made (a .glb / .obj, the batch's --vr, Bake Texture).
     """
     unknown = set(methods) - set(METHODS) - {STEREO_EVIDENCE_WEIGHTS}
     if unknown:
         raise ValueError(f"setting(methods=...): unknown methods {sorted(unknown)}")
     metadata = {"help": help, "expose": tuple(expose), "methods": tuple(methods), "min": min, "max": max, "choices": choices, "flag": flag,
                 "blender_name": blender_name, "label": label, "unset": unset, "default_text": default_text,
-                "metavar": metavar}
+                "metavar": metavar, "textured": textured}
     if isinstance(default, (list, tuple)):
         return field(default_factory=lambda: tuple(default), metadata=metadata)
     return field(default=default, metadata=metadata)
@@ -149,10 +151,10 @@ class ReconSettings:
     texture_size: int = setting(
         TextureOptions.texture_size, "side of the baked texture in texels: 4096 for desktop VR, 2048 for mobile "
         "headsets (one of " + ", ".join(map(str, TEXTURE_SIZES)) + ")", (CLI, BLENDER), min=min(TEXTURE_SIZES),
-        max=max(TEXTURE_SIZES), label="Texture Size")
+        max=max(TEXTURE_SIZES), label="Texture Size", textured=True)
     face_budget: int = setting(
         TextureOptions.face_budget, "a textured result is decimated to at most this many faces before the bake "
-        "(0 = keep every face)", (CLI, BLENDER), min=0, max=10_000_000, label="Face Budget")
+        "(0 = keep every face)", (CLI, BLENDER), min=0, max=10_000_000, label="Face Budget", textured=True)
 
     @property
     def texture_options(self) -> TextureOptions:
@@ -335,6 +337,16 @@ def settings_from_arguments(args: argparse.Namespace, **overrides: Any) -> Recon
             values[f.name] = tuple(values[f.name])
     values.update(overrides)
     return ReconSettings(**values)
+
+
+def refuse_untextured_settings(given: set[str], textured: bool, how: str) -> None:
+    """Raise VortxError when a texture setting in `given` is set for a run that makes no textured result;
+    `how` says what makes one at this entry point (e.g. "--out room.glb or room.obj")."""
+    unused = [cli_flag(f) for f in setting_fields() if f.name in given and f.metadata["textured"]]
+    if unused and not textured:
+        raise VortxError(f"{', '.join(unused)} {'is' if len(unused) == 1 else 'are'} used only by a textured result "
+                         f"({how}), and this run makes none. Leave {'it' if len(unused) == 1 else 'them'} out, "
+                         "or ask for a textured result")
 
 
 def refuse_ignored_settings(settings: ReconSettings, given: set[str], name_of: Any = None) -> None:

@@ -8,6 +8,7 @@ tests/vortx_blender/test_capture_real.py run the real loaders and SfM.
 from __future__ import annotations
 
 import importlib
+import json
 from pathlib import Path
 
 import numpy as np
@@ -65,6 +66,46 @@ def test_import_fills_panel_and_creates_cameras(blender, empty_scene, fake_loade
     assert bpy.ops.vortx.import_capture(filepath=str(tmp_path)) == {"FINISHED"}
     assert len([o for o in bpy.data.objects if o.type == "CAMERA"]) == 4
     assert empty_scene.vortx.frame_count == 4
+
+
+def test_import_records_the_similarity_from_the_capture_frame(blender, empty_scene, fake_loader, tmp_path: Path) -> None:
+    """A capture in arbitrary units and orientation is moved to the Z-up world; scene.vortx.capture_frame
+    records the similarity that did it (as `engine reconstruct`'s sidecar does), so a script can map
+    the scene's cameras and results back onto the capture's own coordinates, also after Set Scale."""
+    import bpy
+
+    from dataclasses import replace
+
+    Similarity = blender.engine.poses.align.Similarity
+    a = np.deg2rad(35.0)
+    tilt = Similarity(np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]),
+                      np.array([0.4, -2.0, 3.0]), 0.6)
+    level = _capture(blender, tmp_path, 6)
+    given = [tilt.apply_pose(f.pose) for f in level.frames]
+    outcome, _ = fake_loader
+    outcome["value"] = level.with_frames([replace(f, pose=p) for f, p in zip(level.frames, given)], metric=False)
+    assert bpy.ops.vortx.import_capture(filepath=str(tmp_path)) == {"FINISHED"}
+
+    def recorded(key: str):
+        entry = json.loads(empty_scene.vortx.capture_frame)[key]
+        return Similarity(np.array(entry["rotation"]), np.array(entry["translation"]), entry["scale"])
+
+    scene_poses = [f.pose for f in blender.vortx_blender.cameras.posed_capture_from_scene(empty_scene).frames]
+    to_world, to_capture = recorded("capture_to_world"), recorded("world_to_capture")
+    assert abs(np.linalg.det(to_world.rotation) - 1) < 1e-9 and to_world.rotation[2] @ tilt.rotation[:, 2] > 0.99
+    for given_pose, scene_pose in zip(given, scene_poses):
+        np.testing.assert_allclose(to_world.apply_pose(given_pose), scene_pose, atol=1e-9)
+        np.testing.assert_allclose(to_capture.apply_pose(scene_pose), given_pose, atol=1e-9)
+
+    # Set Scale doubles the world: the record follows.
+    cameras = sorted((o for o in bpy.data.collections["VoRTX Capture"].objects if o.type == "CAMERA"), key=lambda o: o.name)
+    PickedPoint = blender.vortx_blender.scale.PickedPoint
+    first, second = (np.array(c.matrix_world.translation) for c in cameras[:2])
+    blender.vortx_blender.scale.set_scale(
+        empty_scene, [PickedPoint("camera a", first), PickedPoint("camera b", second)], 2 * float(np.linalg.norm(first - second)))
+    scene_poses = [f.pose for f in blender.vortx_blender.cameras.posed_capture_from_scene(empty_scene).frames]
+    for given_pose, scene_pose in zip(given, scene_poses):
+        np.testing.assert_allclose(recorded("capture_to_world").apply_pose(given_pose), scene_pose, atol=1e-6)
 
 
 def test_import_without_poses_clears_old_cameras(blender, empty_scene, fake_loader, tmp_path: Path) -> None:
@@ -174,6 +215,10 @@ def test_estimate_poses_applies_engine_result(blender, empty_scene, fake_loader,
     assert len([o for o in bpy.data.objects if o.type == "CAMERA"]) == 5
     # SfM ran on the capture Import loaded, which was not loaded from disk a second time.
     assert calls == [tmp_path] and seen_captures[0] is imported
+
+    # SfM's poses have no coordinates of the capture's own: the record says so instead of a similarity.
+    frame = json.loads(settings.capture_frame)
+    assert frame["capture_to_world"] is None and "structure from motion" in frame["note"]
 
     # A scene this session did not import (a reopened .blend) loads the capture from disk.
     blender.vortx_blender.capture._loaded_captures.clear()

@@ -118,6 +118,10 @@ def test_batch_writes_blend_with_cameras_and_mesh(scannet_capture: Path, tmp_pat
     assert report["status"] == "ok" and report["error"] is None and report["blend"] == str(out.resolve())
     assert report["frames"] == {"loaded": 8, "posed": 8, "used": 8, "skipped": [], "skip_reasons": []}
     assert report["poses"]["source"] == "given" and report["poses"]["scale_source"] == "metric capture"
+    # The similarity from the capture's own coordinates to the result's world (metric capture: unchanged).
+    frame = report["poses"]["frame"]
+    assert frame["frame"] == "world" and frame["capture_to_world"]["matrix"] == np.eye(4).tolist()
+    assert frame["output_to_capture"]["scale"] == 1.0
     assert report["mesh"]["faces"] == result["faces"] and report["mesh"]["export_bytes"] == ply.stat().st_size
     assert set(report["timings_s"]) == {"import capture", "poses", "reconstruct", "save", "export", "total"}
     assert report["settings"]["voxel_size"] == 0.16

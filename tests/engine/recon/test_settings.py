@@ -16,14 +16,14 @@ from engine.recon import cli
 from engine.recon.settings import BLENDER, CLI, ReconSettings, cli_flag, field_default, setting_fields
 
 # Flags of each command that are not reconstruction settings.
-RECONSTRUCT_OWN = {"help", "capture", "out", "camera_height", "refine_poses", "quiet"}
+RECONSTRUCT_OWN = {"help", "capture", "out", "camera_height", "refine_poses", "frame", "quiet"}
 BATCH_OWN = {"help", "capture", "captures", "out", "export", "camera_height", "skip_poses", "refine_poses", "vr"}
 # scene.vortx properties that are not ReconSettings fields: the capture summary, pose estimation,
 # the weights chooser (-> ReconSettings.weights), the tile overlay and the Blender-side result options.
 BLENDER_OWN = {
     "capture_path", "capture_format", "frame_count", "posed_frame_count", "resolution_x", "resolution_y",
     "poses_metric", "pose_status", "scale_source", "scale_description", "scale_uncertainty", "skipped_count", "skipped_names", "sfm_matcher", "sfm_max_image_side", "camera_height",
-    "weights_source", "weights_path", "show_tiles", "result_mode", "min_piece_faces", "min_piece_fraction",
+    "capture_frame", "weights_source", "weights_path", "show_tiles", "result_mode", "min_piece_faces", "min_piece_fraction",
     "target_faces",
 }
 
@@ -187,22 +187,41 @@ def test_each_method_refuses_every_flag_it_does_not_read(method: str, tmp_path, 
         if f.name == "method" or (extra and f.name == "weights"):
             continue
         flags = ["--method", name, *extra, *_flag_at_default(f)]
-        assert main(["reconstruct", str(missing), "--out", str(tmp_path / "room.ply"), *flags]) == 1
+        # A textured result (.glb; the batch's --vr), which reads the texture settings too.
+        assert main(["reconstruct", str(missing), "--out", str(tmp_path / "room.glb"), *flags]) == 1
         err = capsys.readouterr().err
         if name in methods_using(f, stereo_weights):
             assert "capture not found" in err, f"{cli_flag(f)} with --method {name}: {err}"
-            vortx_batch.parse_arguments([str(missing), "--out", str(tmp_path / "room.blend"), *flags])
+            vortx_batch.parse_arguments([str(missing), "--out", str(tmp_path / "room.blend"), "--vr", *flags])
             checked["read"] += 1
             continue
         users = " / ".join(methods_using(f))
         assert err.startswith(f"error: --method {name} does not use {cli_flag(f)}: "), err
         assert f"{cli_flag(f)} is used only by --method {users}" in err and "Leave it out" in err
         with pytest.raises(SystemExit):
-            vortx_batch.parse_arguments([str(missing), "--out", str(tmp_path / "room.blend"), *flags])
+            vortx_batch.parse_arguments([str(missing), "--out", str(tmp_path / "room.blend"), "--vr", *flags])
         assert f"does not use {cli_flag(f)}" in capsys.readouterr().err
         checked["refused"] += 1
     # Each method reads some flags and not others (--weights, --views ... are VoRTX's; the stereo knobs stereo's).
     assert checked["read"] >= 5 and (checked["refused"] >= 1 or stereo_weights), checked
+
+
+def test_texture_settings_are_refused_without_a_textured_result(tmp_path, capsys) -> None:
+    from engine.__main__ import main
+
+    sys.path.insert(0, str(REPO / "scripts"))
+    import vortx_batch
+
+    texture = [f for f in setting_fields(CLI) if f.metadata["textured"]]
+    assert {f.name for f in texture} == {"texture_size", "face_budget"}
+    for f in texture:
+        flags = _flag_at_default(f)
+        assert main(["reconstruct", "nowhere", "--out", str(tmp_path / "room.ply"), *flags]) == 1
+        err = capsys.readouterr().err
+        assert err.startswith(f"error: {cli_flag(f)} is used only by a textured result (--out room.glb or room.obj)")
+        with pytest.raises(SystemExit):
+            vortx_batch.parse_arguments(["nowhere", "--out", str(tmp_path / "room.blend"), *flags])
+        assert f"{cli_flag(f)} is used only by a textured result (--vr)" in capsys.readouterr().err
 
 
 def test_the_refusal_names_every_ignored_flag_at_once(capsys) -> None:
