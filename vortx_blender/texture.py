@@ -9,7 +9,9 @@ decimated to the face budget, atlas, bake) and encodes the texture as PNG, touch
 the main thread `apply_bake` then builds a new mesh (UV map "UVMap", vertex colours and the
 confidence layer carried over), a packed image and a material, and swaps them in only once all of
 them exist; a failure while building removes what it made, so a failed or cancelled bake leaves the
-scene as it was.
+scene as it was. The engine's native steps (decimation, the xatlas atlas) run in child processes
+(engine/native_worker.py): a segfault or hang there fails the bake with the step named, instead of
+ending Blender's process and the unsaved scene with it.
 
 Images: the engine's texture is sRGB bytes with row 0 at the top, as PNG stores it; Blender images
 start at the bottom row. Packing the engine's PNG bytes (rather than writing `image.pixels`) keeps
