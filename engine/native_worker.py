@@ -93,39 +93,45 @@ def describe_exit(returncode: int) -> str:
 
 def run_in_child(step: str, function: Callable[..., Mapping[str, Any]], arrays: Mapping[str, np.ndarray],
                  params: Optional[Mapping[str, Any]] = None, *, time_limit_s: float,
-                 cancel: Optional[CancelToken] = None, advice: str = "") -> dict[str, np.ndarray]:
+                 cancel: Optional[CancelToken] = None, advice: str = "", tries: int = 1) -> dict[str, np.ndarray]:
     """`function(**arrays, **params)` in a fresh child process -> the dict it returns, as arrays.
 
     step: what the user knows the step as ("texture atlas (xatlas)"), used in every message.
     function: a module-level function of the engine (or of any module the child can import from our
     sys.path); it takes the arrays and the JSON-able params as keyword arguments and returns a dict of
     arrays and numbers (numbers come back as 0-d arrays). advice: what the user can do when the step
-    crashes or hangs, appended to the message.
+    crashes or hangs, appended to the message. tries: how many fresh processes a crash may take (a
+    crash that depends on the library's thread timing passes on a second try; a hang is not retried).
     Raises Cancelled (the child is killed), NativeStepError (crash, hang, no result), the VortxError
     the function raised, or RuntimeError carrying the child's traceback for any other exception.
     """
-    folder = Path(tempfile.mkdtemp(prefix="vortx-native-"))
-    keep = False
-    try:
-        module, qualname = _importable_name(function)
-        (folder / "job.json").write_text(json.dumps({
-            "step": step, "module": module, "function": qualname,
-            "engine_parent": str(Path(__file__).resolve().parent.parent), "params": dict(params or {})}),
-            encoding="utf-8")
-        np.savez(folder / "in.npz", **{key: np.asarray(value) for key, value in arrays.items()})
-        returncode = _wait(step, folder, time_limit_s, cancel, advice)
-        if (folder / "out.npz").is_file() and returncode == 0:
-            with np.load(folder / "out.npz", allow_pickle=False) as npz:
-                return {key: npz[key] for key in npz.files}
-        if (folder / "error.json").is_file():
-            _raise_child_error(step, json.loads((folder / "error.json").read_text(encoding="utf-8")))
-        keep = True  # the input that crashed it and the log, for a bug report
-        raise NativeStepError(
-            f"{step} crashed: its worker process {describe_exit(returncode)}. Nothing was changed.{_sentence(advice)} "
-            f"Its input and log are kept in {folder} for a bug report.{_log_tail(folder)}")
-    finally:
-        if not keep:
-            shutil.rmtree(folder, ignore_errors=True)
+    module, qualname = _importable_name(function)
+    for attempt in range(1, tries + 1):
+        folder = Path(tempfile.mkdtemp(prefix="vortx-native-"))
+        keep = False
+        try:
+            (folder / "job.json").write_text(json.dumps({
+                "step": step, "module": module, "function": qualname,
+                "engine_parent": str(Path(__file__).resolve().parent.parent), "params": dict(params or {})}),
+                encoding="utf-8")
+            np.savez(folder / "in.npz", **{key: np.asarray(value) for key, value in arrays.items()})
+            returncode = _wait(step, folder, time_limit_s, cancel, advice)
+            if (folder / "out.npz").is_file() and returncode == 0:
+                with np.load(folder / "out.npz", allow_pickle=False) as npz:
+                    return {key: npz[key] for key in npz.files}
+            if (folder / "error.json").is_file():
+                _raise_child_error(step, json.loads((folder / "error.json").read_text(encoding="utf-8")))
+            if attempt < tries:
+                continue
+            keep = True  # the input that crashed it and the log, for a bug report
+            each = f" on each of {tries} tries" if tries > 1 else ""
+            raise NativeStepError(
+                f"{step} crashed{each}: its worker process {describe_exit(returncode)}. Nothing was changed."
+                f"{_sentence(advice)} Its input and log are kept in {folder} for a bug report.{_log_tail(folder)}")
+        finally:
+            if not keep:
+                shutil.rmtree(folder, ignore_errors=True)
+    raise ValueError(f"run_in_child needs tries >= 1, got {tries}")
 
 
 def _wait(step: str, folder: Path, time_limit_s: float, cancel: Optional[CancelToken], advice: str) -> int:

@@ -26,6 +26,14 @@ def segfault(**_: object) -> dict:
     return {}
 
 
+def segfault_once(marker: str, **_: object) -> dict:
+    """Crashes the first time (a crash that depends on thread timing), then works."""
+    if not Path(marker).exists():
+        Path(marker).write_text("crashed once")
+        segfault()
+    return {"ok": 1}
+
+
 def abort(**_: object) -> dict:
     """What a failed assertion (glog CHECK, assert()) in a native library does."""
     os.abort()

@@ -37,6 +37,9 @@ ATLAS_STEP = "texture atlas (xatlas)"
 # Seconds: a fixed start plus per face. Far above what xatlas takes (demo room: 14 s at 100k faces,
 # a limit of 320 s), so only a hang meets it, also on a slow or busy machine.
 ATLAS_TIME_LIMIT_S = (120.0, 2e-3)
+# xatlas's one observed crash did not repeat on the same input (see manifold_faces): a second fresh
+# process gets past such a timing-dependent crash, a deterministic one fails again and is reported.
+ATLAS_TRIES = 2
 ATLAS_ADVICE = ("Try again; if it fails again, bake with another face budget (Face Budget, --face-budget) or "
                 "texture size, which gives xatlas a different mesh.")
 
@@ -79,7 +82,7 @@ def uv_atlas(vertices: np.ndarray, faces: np.ndarray, normals: np.ndarray | None
                            "block_ends": np.cumsum([len(block) for block in blocks])},
                           {"texture_size": int(texture_size), "padding": int(padding)},
                           time_limit_s=ATLAS_TIME_LIMIT_S[0] + ATLAS_TIME_LIMIT_S[1] * len(faces), cancel=cancel,
-                          advice=ATLAS_ADVICE)
+                          advice=ATLAS_ADVICE, tries=ATLAS_TRIES)
     if int(layout["charts"]) == 0:  # e.g. every face of zero area: nothing to lay out
         raise VortxError("no UV atlas could be made: the mesh's faces have no area (collapsed or degenerate mesh)")
     width, height = int(layout["width"]), int(layout["height"])

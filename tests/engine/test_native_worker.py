@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import re
 import shutil
+import signal
+import subprocess
 import sys
 import threading
 import time
@@ -56,30 +58,56 @@ def test_a_crash_is_an_error_naming_the_step_the_signal_and_what_to_do(crash, si
         shutil.rmtree(folder, ignore_errors=True)
 
 
-def test_a_hang_hits_the_time_limit_and_the_child_is_stopped(tmp_path):
-    pid_file = tmp_path / "pid"
+def test_a_crash_gets_a_fresh_process_when_tries_allow(tmp_path):
+    marker = str(tmp_path / "crashed")
+    assert int(run_in_child(STEP, fixtures_native.segfault_once, {}, {"marker": marker}, time_limit_s=60, tries=2)["ok"]) == 1
+    with pytest.raises(NativeStepError, match=re.escape(f"{STEP} crashed on each of 2 tries: its worker process was "
+                                                        "killed by SIGSEGV")) as caught:
+        run_in_child(STEP, fixtures_native.segfault, {}, time_limit_s=60, tries=2)
+    shutil.rmtree(kept_folder(str(caught.value)))
+
+
+@pytest.fixture
+def children(monkeypatch) -> list:
+    """The child processes run_in_child starts (to check they were stopped)."""
+    import engine.native_worker as native_worker
+
+    started = []
+
+    class Recorded(subprocess.Popen):
+        def __init__(self, *args, **kwargs):
+            super().__init__(*args, **kwargs)
+            started.append(self)
+
+    monkeypatch.setattr(native_worker.subprocess, "Popen", Recorded)
+    return started
+
+
+def test_a_hang_hits_the_time_limit_and_the_child_is_stopped(tmp_path, children):
     with pytest.raises(NativeStepError, match=re.escape(f"{STEP} did not finish within 2 s and was stopped. "
                                                         f"Nothing was changed. {ADVICE}")):
-        run_in_child(STEP, fixtures_native.hang, {}, {"pid_file": str(pid_file)}, time_limit_s=2, advice=ADVICE)
-    assert fixtures_native.process_is_gone(int(pid_file.read_text()))
+        run_in_child(STEP, fixtures_native.hang, {}, {"pid_file": str(tmp_path / "pid")}, time_limit_s=2, advice=ADVICE)
+    (child,) = children
+    assert child.returncode == -signal.SIGKILL  # killed and reaped, not left running
 
 
-def test_cancel_stops_the_child(tmp_path):
+def test_cancel_stops_the_child(tmp_path, children):
     pid_file, token = tmp_path / "pid", CancelToken()
 
-    def cancel_once_running():
-        for _ in range(600):
-            if pid_file.is_file():
-                break
+    def cancel_once_hanging():  # Esc while the step runs
+        while not pid_file.is_file():
+            if children and children[0].poll() is not None:
+                break  # ended on its own: run_in_child says so
             time.sleep(0.05)
         token.cancel()
 
-    canceller = threading.Thread(target=cancel_once_running)
+    canceller = threading.Thread(target=cancel_once_hanging)
     canceller.start()
     with pytest.raises(Cancelled):
-        run_in_child(STEP, fixtures_native.hang, {}, {"pid_file": str(pid_file)}, time_limit_s=120, cancel=token)
+        run_in_child(STEP, fixtures_native.hang, {}, {"pid_file": str(pid_file)}, time_limit_s=600, cancel=token)
     canceller.join()
-    assert fixtures_native.process_is_gone(int(pid_file.read_text()))
+    (child,) = children
+    assert child.returncode == -signal.SIGKILL and fixtures_native.process_is_gone(int(pid_file.read_text()))
 
 
 def test_the_steps_own_errors_come_back_as_they_were_raised():
