@@ -17,6 +17,11 @@ class WeightsError(VortxError):
     """A weights file is missing, unreadable or does not match the model."""
 
 
+class NativeStepError(VortxError):
+    """A native library step (xatlas, fast-simplification) crashed, hung past its time limit, or could
+    not be started in its child process (engine/native_worker.py)."""
+
+
 class Cancelled(VortxError):
     """The user cancelled a long-running job."""
 

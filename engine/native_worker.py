@@ -32,17 +32,13 @@ from typing import Any, Optional
 import numpy as np
 
 from . import errors
-from .errors import Cancelled, VortxError
+from .errors import Cancelled, NativeStepError, VortxError
 from .jobs import CancelToken
 
 CHILD_SCRIPT = Path(__file__).with_name("native_child.py")
 ENGINE_PACKAGE = __name__.rpartition(".")[0]  # "engine", or "bl_ext.<repo>.vortx.engine" inside Blender
 POLL_S = 0.05  # how often the parent looks at the child, the cancel flag and the clock
 LOG_LINES = 12  # of the child's output quoted in a crash message
-
-
-class NativeStepError(VortxError):
-    """A native step crashed, hung past its time limit, or could not be started."""
 
 
 def python_executable() -> str:

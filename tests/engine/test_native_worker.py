@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 
 import fixtures_native
-from engine.errors import Cancelled, CaptureError
+from engine.errors import Cancelled, CaptureError, NativeStepError
 from engine.jobs import CancelToken
-from engine.native_worker import NativeStepError, python_executable, run_in_child
+from engine.native_worker import python_executable, run_in_child
 
 STEP = "texture atlas (xatlas)"
 ADVICE = "Bake with another face budget."
