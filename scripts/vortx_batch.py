@@ -384,6 +384,7 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
                             "refined": bool(args.refine_poses and not estimated), "status": settings.pose_status,
                             "scale_source": settings.scale_source, "scale_description": settings.scale_description,
                             "scale_relative_sigma": round(float(settings.scale_uncertainty), 4),
+                            "pose_check": settings.pose_check,
                             "metric": bool(settings.poses_metric)}
         report.frames["posed"] = settings.posed_frame_count
         # The similarity between the capture's own coordinates and the result's Z-up world, both ways.

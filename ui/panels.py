@@ -71,6 +71,8 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job]) -> None:
                 # panel shows it wrapped on its own lines, with a warning icon when it is a guess.
                 icon = "ERROR" if settings.scale_source in ("unknown", "") or "no floor" in settings.scale_description else "INFO"
                 _wrapped(col, settings.scale_description, icon)
+            if settings.pose_check:  # the given poses look off against the photos: Refine Poses below
+                _wrapped(col, settings.pose_check, "ERROR")
         if settings.skipped_count:
             _wrapped(col, f"{settings.skipped_count} photo(s) skipped: {settings.skipped_names}", "ERROR")
     else:

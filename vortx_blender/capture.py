@@ -65,12 +65,14 @@ def resolve_capture_path(filepath: str, directory: str = "") -> Optional[Path]:
 
 
 def apply_capture(scene: "bpy.types.Scene", capture: Capture, path: os.PathLike | str, pose_status: Optional[str] = None,
-                  scale_source: str = "", scale_description: str = "", scale_uncertainty: float = 0.0) -> CaptureApplied:
+                  scale_source: str = "", scale_description: str = "", scale_uncertainty: float = 0.0,
+                  pose_check: str = "") -> CaptureApplied:
     """Replace the scene's capture summary, capture cameras and sparse points with `capture`'s.
 
     Raises CaptureError / PoseError (from validation) before changing anything.
     """
-    summary = capture_summary(capture, str(path), pose_status, scale_source, scale_description, scale_uncertainty)
+    summary = capture_summary(capture, str(path), pose_status, scale_source, scale_description, scale_uncertainty,
+                              pose_check)
     plan = plan_capture_cameras(capture)
     points, colours = checked_points(capture.points, capture.point_colors)
     cameras = apply_camera_plan(scene, plan)
@@ -85,7 +87,9 @@ def apply_prepared(scene: "bpy.types.Scene", prepared: PreparedCapture, path: os
     capture = prepared.capture.with_points(prepared.points, prepared.point_colors)
     return apply_capture(scene, capture, path, pose_status=prepared.pose_status(),
                          scale_source=prepared.scale_source, scale_description=prepared.description,
-                         scale_uncertainty=prepared.scale.relative_sigma if prepared.scale is not None else 0.0)
+                         scale_uncertainty=prepared.scale.relative_sigma if prepared.scale is not None else 0.0,
+                         pose_check=prepared.pose_check.message if prepared.pose_check is not None
+                         and prepared.pose_check.poses_off else "")
 
 
 def scene_camera_height(settings: object) -> float:
@@ -126,7 +130,9 @@ def import_capture_job(path: Path, camera_height: float) -> JobFunction:
     def run(progress: ProgressCallback, cancel: CancelToken) -> ImportedCapture:
         loaded = engine_capture.load_capture(path, progress=progress, cancel=cancel)
         cancel.check()
-        return ImportedCapture(loaded, prepare_capture(loaded, camera_height=camera_height, sfm=SFM_NEVER))
+        # Given poses are checked against the photos here (seconds), so the panel can say when they look off.
+        return ImportedCapture(loaded, prepare_capture(loaded, camera_height=camera_height, sfm=SFM_NEVER,
+                                                       progress=progress, cancel=cancel, check_poses=True))
 
     return run
 

@@ -142,6 +142,10 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
         description="Relative 1-sigma of the scale found from the floor and ceiling (0.08 = 8 %); 0 when the scale is exact or unknown",
         min=0.0,
     )
+    pose_check: StringProperty(
+        name="Pose Check",
+        description="What checking the capture's own poses against the photos found when they look off (empty when they fit or were not checked)",
+    )
     skipped_count: IntProperty(name="Skipped Photos", description="Photos left out of the capture because they cannot be used", min=0)
     skipped_names: StringProperty(name="Skipped", description="The first photos left out (the import report names all of them and why)")
     capture_frame: StringProperty(
@@ -265,7 +269,7 @@ SKIPPED_NAMES_SHOWN = 3  # the panel names this many skipped photos; the report 
 
 
 def capture_summary(capture: "Capture", path: str, pose_status: str | None = None, scale_source: str = "",
-                    scale_description: str = "", scale_uncertainty: float = 0.0) -> dict[str, object]:
+                    scale_description: str = "", scale_uncertainty: float = 0.0, pose_check: str = "") -> dict[str, object]:
     """The scene.vortx summary values describing `capture`, without touching Blender data.
 
     Computed before anything is written so that a failure in between cannot leave a half-updated
@@ -293,6 +297,7 @@ def capture_summary(capture: "Capture", path: str, pose_status: str | None = Non
         "scale_source": scale_source if posed else "",
         "scale_description": scale_description if posed else "",
         "scale_uncertainty": float(scale_uncertainty) if posed else 0.0,
+        "pose_check": pose_check if posed else "",
         "skipped_count": len(capture.skipped),
         "skipped_names": ", ".join(capture.skipped[:SKIPPED_NAMES_SHOWN])
         + (f" and {len(capture.skipped) - SKIPPED_NAMES_SHOWN} more" if len(capture.skipped) > SKIPPED_NAMES_SHOWN else ""),

@@ -33,6 +33,7 @@ from .gravity import KnownDistance, align_gravity_and_scale
 from .refine import STATUS_NOT_REFINED, STATUS_REFUSED
 
 if TYPE_CHECKING:
+    from .quality import PoseCheck
     from .refine import RefineOptions, RefineResult
     from .scale import ScaleEstimate
     from .sfm import PoseResult, SfmOptions
@@ -70,6 +71,8 @@ class PreparedCapture:
     # The metric scale from the floor and ceiling (scale.py) when the camera-height guess was replaced
     # by it; scale_source is then its source ("floor and ceiling", ...).
     scale: Optional["ScaleEstimate"] = None
+    # How well the given poses explain the photos (quality.check_given_poses), when they were checked.
+    pose_check: Optional["PoseCheck"] = None
 
     @property
     def ran_sfm(self) -> bool:
@@ -107,6 +110,8 @@ class PreparedCapture:
             entry["refinement"] = refinement_summary(self.refinement)
         if self.scale is not None:
             entry["scale"] = self.scale.summary()
+        if self.pose_check is not None:
+            entry["pose_check"] = self.pose_check.summary()
         return entry
 
     def pose_status(self) -> str:
@@ -138,6 +143,7 @@ def prepare_capture(
     refine_options: Optional["RefineOptions"] = None,
     progress: Optional[ProgressCallback] = None,
     cancel: Optional[CancelToken] = None,
+    check_poses: bool = False,
 ) -> PreparedCapture:
     """`capture` in the world the network needs: posed, Z up, metric where a scale can be found.
 
@@ -145,6 +151,8 @@ def prepare_capture(
     camera_height / known_distance are replaced by the arguments here, so the scale has one source).
     `refine` refines the given poses against the photos first (`refine_options` tunes it); it is a
     note, not an error, when SfM estimated the poses here (already adjusted) or none are given.
+    `check_poses` checks given poses that are not refined against the photos (a few seconds of
+    matching); poses that look off get a warning suggesting refinement.
     Raises PoseError for a bad camera height or known distance, when SfM finds no poses, or when the
     refinement fails or looks like a failure (its message has the numbers).
     """
@@ -183,6 +191,8 @@ def prepare_capture(
     prepared = PreparedCapture(aligned, alignment.scale_source, alignment.description, warnings,
                                similarity=alignment.similarity, refinement=refinement, points=alignment.points,
                                point_colors=colors)
+    if check_poses and not refine:
+        _check_poses(prepared, capture, progress, cancel)
     # Given non-metric poses (a COLMAP model): the floor and ceiling in its sparse points only, so
     # importing a capture stays quick.
     return _with_metric_scale(prepared, camera_height, dense=False, progress=progress, cancel=cancel)
@@ -229,6 +239,31 @@ def _with_sfm(
     capture = result.capture.with_points(result.points, result.point_colors)  # not the given capture's old points
     return PreparedCapture(capture, alignment.scale_source, alignment.description, list(result.warnings), sfm=result,
                            points=result.points, point_colors=result.point_colors)
+
+
+def _check_poses(
+    prepared: PreparedCapture, capture: Capture, progress: Optional[ProgressCallback], cancel: Optional[CancelToken]
+) -> None:
+    """Check the given poses of `capture` against its photos; a warning on `prepared` when they look
+    off, a note when they could not be checked (a similarity does not change the reprojection error,
+    so the capture's own world serves)."""
+    from .quality import MIN_CHECK_FRAMES, check_given_poses
+
+    checkable = [f for f in capture.frames if f.pose is not None and f.K is not None]
+    if len(checkable) < MIN_CHECK_FRAMES:
+        prepared.notes.append(f"the given poses were not checked against the photos: {len(checkable)} posed photos "
+                              f"with intrinsics, the check needs {MIN_CHECK_FRAMES}")
+        return
+    try:
+        check = check_given_poses(capture, progress=progress, cancel=cancel)
+    except PoseError as error:  # COLMAP could not run: the poses are used as given
+        prepared.notes.append(f"the given poses could not be checked against the photos: {error}")
+        return
+    prepared.pose_check = check
+    if check.poses_off:
+        prepared.warnings.append(check.message)
+    elif check.message:
+        prepared.notes.append(check.message)
 
 
 def _with_metric_scale(

@@ -1,4 +1,4 @@
-"""Sanity checks on an SfM result, turned into warnings a user can act on.
+"""Sanity checks on an SfM result and on given poses, turned into warnings a user can act on.
 
 Thresholds come from the failure experiments in platform-notes section 1: a good capture of a
 textured room registers (nearly) every photo in one model with a reprojection error well below
@@ -7,11 +7,19 @@ textured room registers (nearly) every photo in one model with a reprojection er
 
 from __future__ import annotations
 
-from typing import Sequence
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Optional, Sequence
 
 import numpy as np
 
 from ..capture.naming import name_list
+from ..errors import PoseError
+
+if TYPE_CHECKING:
+    from ..capture.model import Capture
+    from ..jobs import CancelToken, ProgressCallback
 
 MIN_REGISTERED_FRACTION = 0.6
 MAX_REPROJECTION_ERROR_PX = 1.5
@@ -70,3 +78,93 @@ def quality_warnings(
 def significant_distortion(shift_px: float, image_size: tuple[int, int]) -> bool:
     """Whether a corner shift (pixels) matters for images of image_size (width, height)."""
     return shift_px > MAX_DISTORTION_FRACTION * max(image_size)
+
+
+# --- Given poses (tracker, ARKit, SLAM, RGB-D rig): do they agree with the photos? ---
+#
+# SIFT matches between neighbouring photos are triangulated with the given poses held fixed (the
+# refinement's worker job with no adjustment round). Poses that agree with the photos reproject
+# those points within a fraction of a pixel (the demo room's true poses: 0.25 px at 320 x 240);
+# poses off by 0.5-2 degrees, as a tracker can be, leave 1.6 px there, and fewer points survive
+# COLMAP's 4 px filter. The check runs on a subset of the photos at a modest size, so it costs a
+# few seconds where a full refinement costs a minute.
+MIN_CHECK_FRAMES = 8  # fewer posed photos than this: too few neighbours to match, the check is skipped
+POSE_CHECK_MAX_SIDE = 640  # photos downscaled to this larger side: the threshold is in these pixels
+POSE_CHECK_MAX_FRAMES = 24  # evenly spaced frames checked (their neighbours by pose are matched)
+MAX_GIVEN_POSE_ERROR_PX = 1.0  # mean reprojection error above which the given poses are called off
+REFINE_SUGGESTION = "refine them against the photos: --refine-poses (engine reconstruct, vortx_batch.py), " \
+                    "engine poses --refine, or Refine Poses in Blender"
+
+
+@dataclass(frozen=True)
+class PoseCheck:
+    """How well the given poses explain the photos."""
+
+    mean_reprojection_error_px: Optional[float]  # None when no point could be triangulated
+    points: int  # points triangulated with the given poses
+    frames: int  # frames checked
+    image_side: int  # larger side (pixels) of the photos as checked
+    poses_off: bool  # the photos say the given poses are off: refine them
+    message: str  # the warning when poses_off; else why nothing could be said, or "" when they fit
+
+    def summary(self) -> dict:
+        """JSON-ready: the reconstruction sidecar's and the batch report's pose check."""
+        return {"mean_reprojection_error_px": self.mean_reprojection_error_px, "points": self.points,
+                "frames": self.frames, "image_side": self.image_side, "poses_off": self.poses_off,
+                "message": self.message}
+
+
+def check_given_poses(
+    capture: "Capture",
+    progress: Optional["ProgressCallback"] = None,
+    cancel: Optional["CancelToken"] = None,
+    max_frames: int = POSE_CHECK_MAX_FRAMES,
+    max_side: int = POSE_CHECK_MAX_SIDE,
+    work_dir: Optional[Path] = None,
+) -> PoseCheck:
+    """Triangulate matches with `capture`'s given poses and measure their reprojection error.
+
+    Needs 3 or more posed frames with intrinsics (PoseError otherwise, as refinement does).
+    """
+    from .process import run_pose_job
+    from .refine import _cam_from_world, neighbour_pairs
+
+    posed = [f for f in capture.frames if f.pose is not None and f.K is not None]
+    if len(posed) < 3:
+        raise PoseError(f"checking the given poses needs 3 or more posed frames with intrinsics; {capture.root} has "
+                        f"{len(posed)}")
+    chosen = np.unique(np.round(np.linspace(0, len(posed) - 1, min(max_frames, len(posed)))).astype(int))
+    frames = [posed[i] for i in chosen]
+    poses = np.stack([f.pose for f in frames])
+    names = [f"{i:06d}.jpg" for i in range(len(frames))]
+    work = Path(work_dir) if work_dir else Path(tempfile.mkdtemp(prefix="vortx-pose-check-"))
+    work.mkdir(parents=True, exist_ok=True)
+    job = {
+        "kind": "refine",
+        "work_dir": str(work),
+        "images": [{"path": str(f.image_path), "name": n} for f, n in zip(frames, names)],
+        "max_side": int(max_side),
+        "max_num_features": 4096,
+        "num_threads": -1,
+        "K_per_image": [np.asarray(f.K, dtype=np.float64).tolist() for f in frames],
+        "cam_from_world": [_cam_from_world(p).tolist() for p in poses],
+        "pairs": [list(p) for p in neighbour_pairs(poses, 6, 2)],
+        "rounds": 0,  # triangulate with the given poses only: no adjustment
+        "loose_angle_deg": 3.0,
+    }
+    result, xyz, _ = run_pose_job(job, work, keep_work=work_dir is not None, task="pose check", progress=progress,
+                                  cancel=cancel)
+    error = result.get("mean_reprojection_error")
+    side = min(max(max(f.width, f.height) for f in frames), max_side) if max_side > 0 else max(max(f.width, f.height) for f in frames)
+    if error is None or len(xyz) < MIN_POINTS:
+        # Too little to judge by: few matches (plain surfaces) or poses so far off that nothing triangulates.
+        message = (f"the given poses could not be checked against the photos: only {len(xyz)} points could be "
+                   f"triangulated with them from {len(frames)} photos; if the result looks doubled or blurred, "
+                   f"{REFINE_SUGGESTION}")
+        return PoseCheck(None if error is None else float(error), int(len(xyz)), len(frames), int(side), False, message)
+    if error > MAX_GIVEN_POSE_ERROR_PX:
+        message = (f"the given poses look off: points triangulated with them reproject {error:.2f} px from where the "
+                   f"photos show them (mean over {len(xyz)} points at {side} px; poses that fit give under "
+                   f"{MAX_GIVEN_POSE_ERROR_PX:g} px), so surfaces will come out doubled or blurred; {REFINE_SUGGESTION}")
+        return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), True, message)
+    return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), False, "")

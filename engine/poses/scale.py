@@ -43,6 +43,7 @@ from typing import Optional, Sequence
 import numpy as np
 
 from ..capture.model import Capture
+from ..errors import Cancelled, VortxError
 from ..jobs import CancelToken, ProgressCallback, check
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .floor import FloorPlane, find_floor_plane
@@ -230,7 +231,9 @@ def _dense_points(
     references = stereo_references(len(posed), DENSE_REFERENCES).tolist()
     try:
         maps = estimate_depth_maps(posed, poses, references, options, points=points, progress=progress, cancel=cancel)
-    except OSError as error:  # a photo that cannot be read: the sparse points still serve
+    except Cancelled:
+        raise
+    except (OSError, VortxError) as error:  # a photo that cannot be read: the sparse points still serve
         return np.zeros((0, 3)), f"dense depth skipped: {error}"
     world: list[np.ndarray] = []
     for depth_map in maps:

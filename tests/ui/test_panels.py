@@ -83,6 +83,26 @@ def test_capture_panel_shows_the_scale_source_and_skipped_photos(blender, empty_
     assert not any(t and "skipped" in t for t in texts)
 
 
+def test_capture_panel_shows_the_scale_uncertainty_and_poses_that_look_off(blender, empty_scene) -> None:
+    import bpy
+
+    settings = empty_scene.vortx
+    settings.capture_path = "/captures/kitchen/"
+    settings.frame_count, settings.posed_frame_count, settings.poses_metric = 40, 40, True
+    settings.scale_source, settings.scale_uncertainty = "floor and ceiling", 0.06
+    settings.scale_description = "metric scale x0.74 +-6 % from the floor and ceiling (dense depth): camera height 2.03 units"
+    settings.pose_check = ("the given poses look off: points triangulated with them reproject 1.60 px from where the "
+                           "photos show them; refine them against the photos: --refine-poses")
+    labels = [c[1] for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
+    texts = [label.get("text") or "" for label in labels]
+    assert "metres (floor and ceiling, +-6 %)" in texts
+    assert "the given poses look off" in " ".join(texts) and "--refine-poses" in " ".join(texts)
+    assert [label.get("icon") for label in labels if (label.get("text") or "").startswith("the given poses")] == ["ERROR"]
+    settings.pose_check = ""
+    texts = [c[1].get("text") or "" for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
+    assert not any("look off" in t for t in texts)
+
+
 def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
     import bpy
 

@@ -58,7 +58,9 @@ def test_estimate_poses_shows_the_sfm_points(blender, empty_scene, monkeypatch, 
     np.testing.assert_allclose(shown, points, atol=1e-6)
     np.testing.assert_array_equal(shown_colours, colours)
     assert blender.vortx_blender.point_cloud.find_point_cloud(empty_scene).hide_render, "a viewport guide, not in renders"
-    assert empty_scene.vortx.scale_source == "camera height" and empty_scene.vortx.scale_description == "scaled"
+    # The stand-in's points show no floor, so the scale stays the camera-height guess and says so (scale.py).
+    assert empty_scene.vortx.scale_source == "camera height guess (no floor seen)"
+    assert empty_scene.vortx.scale_description.endswith("; scaled") and empty_scene.vortx.scale_uncertainty > 0
 
 
 def _refine_result(blender, capture, moved: dict[int, np.ndarray], refused: list[int]):

@@ -1,11 +1,20 @@
-"""SfM sanity checks (platform-notes section 1 thresholds) and the lens-distortion measure."""
+"""SfM sanity checks (platform-notes section 1 thresholds), the lens-distortion measure, and the check
+of given poses against the photos: the demo room's true poses pass it, the same poses turned 0.5-2
+degrees (a tracker slightly off) are called off with a suggestion to refine them."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from engine.capture.model import Capture, Frame
+from engine.poses.prepare import SFM_NEVER, prepare_capture
 from engine.poses.quality import quality_warnings, radial_corner_shift, significant_distortion
+from fixtures_capture import perturbed_poses
+
+SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "demo_room"
 
 
 def test_a_good_result_has_no_warnings():
@@ -33,3 +42,39 @@ def test_radial_corner_shift_matches_the_model():
     assert radial_corner_shift(K, [0.1, -0.2], 100, 100) == pytest.approx(100 * abs(0.1 * 0.5 - 0.2 * 0.25) * 0.5**0.5)
     assert significant_distortion(6.0, (1080, 1920)) is False  # 0.3 % of the long side
     assert significant_distortion(12.0, (1080, 1920)) is True
+
+
+def _demo_capture(poses_of) -> Capture:
+    """14 demo photos (320 x 240) as a metric capture whose poses are `poses_of(true poses)`."""
+    if not (SAMPLE / "truth" / "pose").is_dir():
+        pytest.skip(f"the demo sample is missing: {SAMPLE}")
+    names = sorted(p.name for p in (SAMPLE / "images").glob("*.jpg"))[:14]
+    K = np.loadtxt(SAMPLE / "truth" / "intrinsic" / "intrinsic_color.txt")[:3, :3]
+    truth = [np.loadtxt(SAMPLE / "truth" / "pose" / f"{Path(n).stem}.txt").reshape(4, 4) for n in names]
+    frames = [Frame(SAMPLE / "images" / n, 320, 240, K.copy(), p) for n, p in zip(names, poses_of(truth))]
+    return Capture(SAMPLE / "images", "scannet", frames, metric=True)
+
+
+def test_given_poses_a_degree_or_two_off_are_called_off_and_true_ones_are_not():
+    exact = prepare_capture(_demo_capture(lambda truth: truth), sfm=SFM_NEVER, check_poses=True)
+    assert exact.pose_check is not None and not exact.pose_check.poses_off
+    assert exact.pose_check.mean_reprojection_error_px < 0.6 and exact.pose_check.points >= 300
+    assert not any("look off" in w for w in exact.warnings)
+
+    off = prepare_capture(_demo_capture(lambda truth: perturbed_poses(truth, np.random.default_rng(1))),
+                          sfm=SFM_NEVER, check_poses=True)
+    assert off.pose_check is not None and off.pose_check.poses_off
+    assert off.pose_check.mean_reprojection_error_px > 1.0
+    warning = next(w for w in off.warnings if "look off" in w)
+    assert "--refine-poses" in warning and f"{off.pose_check.mean_reprojection_error_px:.2f} px" in warning
+    assert off.summary()["pose_check"]["poses_off"] is True
+    # The poses themselves are used as given: the check only reports.
+    assert np.allclose(off.capture.frames[0].pose, _demo_capture(
+        lambda truth: perturbed_poses(truth, np.random.default_rng(1))).frames[0].pose)
+
+
+def test_too_few_photos_are_not_checked_and_say_so():
+    capture = _demo_capture(lambda truth: truth)
+    few = Capture(capture.root, capture.format, capture.frames[:5], metric=True)
+    prepared = prepare_capture(few, sfm=SFM_NEVER, check_poses=True)
+    assert prepared.pose_check is None and any("not checked" in n for n in prepared.notes)

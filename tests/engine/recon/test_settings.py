@@ -22,7 +22,7 @@ BATCH_OWN = {"help", "capture", "captures", "out", "export", "camera_height", "s
 # the weights chooser (-> ReconSettings.weights), the tile overlay and the Blender-side result options.
 BLENDER_OWN = {
     "capture_path", "capture_format", "frame_count", "posed_frame_count", "resolution_x", "resolution_y",
-    "poses_metric", "pose_status", "scale_source", "scale_description", "scale_uncertainty", "skipped_count", "skipped_names", "sfm_matcher", "sfm_max_image_side", "camera_height",
+    "poses_metric", "pose_status", "scale_source", "scale_description", "scale_uncertainty", "pose_check", "skipped_count", "skipped_names", "sfm_matcher", "sfm_max_image_side", "camera_height",
     "capture_frame", "weights_source", "weights_path", "show_tiles", "result_mode", "min_piece_faces", "min_piece_fraction",
     "target_faces",
 }
