@@ -2,9 +2,11 @@
 panels as a user drives them; runs inside Blender (`blender --python scripts/gui_workflow_blender.py
 -- --photos DIR --out DIR`), started by scripts/gui_workflow.py under Xvfb.
 
-Import Capture -> Estimate Poses -> Reconstruct (VoRTX, the panel's voxel size and view count, tiles
-shown) -> Reconstruct (Stereo, the default) -> Show Observation -> Bake Texture -> Export Result
-(GLB). The long jobs are invoked as the panel's buttons invoke them ('INVOKE_DEFAULT': modal, with
+Import Capture -> Estimate Poses -> Reconstruct with VoRTX (the panel's voxel size and views per
+tile, tiles shown while it runs; then Esc, which must leave the scene unchanged: the network takes many
+minutes per tile on a loaded CPU) -> Reconstruct with Stereo, the default (the panels' voxel size and
+stereo views) -> Show Observation -> Bake Texture -> Export Result (GLB) -> the sidebar scrolled to its
+last panels. The long jobs are invoked as the panel's buttons invoke them ('INVOKE_DEFAULT': modal, with
 progress in the status bar and the sidebar), so the window keeps drawing while they run. After each
 step the scene is checked; screenshots of the VoRTX sidebar and of the whole window are taken with
 ImageMagick's `import` (Blender's own screenshot operator gives black images with software GL).
@@ -31,8 +33,10 @@ ADDON = "bl_ext.user_default.vortx"
 # so the screenshots show every panel.
 OPEN_PANELS = ("VORTX_PT_pose_settings", "VORTX_PT_model", "VORTX_PT_stereo", "VORTX_PT_advanced")
 # The settings typed into the panels (small: the run stays a few minutes on two CPU cores).
-VOXEL_SIZE = 0.08
-VIEW_COUNT = 10
+VORTX_VOXEL_SIZE = 0.08
+VORTX_VIEW_COUNT = 10
+VOXEL_SIZE = 0.05
+STEREO_VIEWS = 24
 TEXTURE_SIZE = 1024
 FACE_BUDGET = 40000
 JOB_TIMEOUT_S = 1200
@@ -110,21 +114,6 @@ def settle():
         yield 0.3
 
 
-def widen_sidebar(pixels: int):
-    """Drag the sidebar's left edge, as a user widens it: its default width cuts the panels' longer
-    lines (the pose and scale summaries, the VR preset)."""
-    window, _, _ = view3d()
-    region = sidebar()
-    x, y = region.x + 2, window.height - (region.y + region.height // 2)
-    subprocess.run(["xdotool", "mousemove", str(x), str(y), "mousedown", "1"], check=True, timeout=30)
-    yield 0.2
-    for step in range(1, 6):
-        subprocess.run(["xdotool", "mousemove", str(x - pixels * step // 5), str(y)], check=True, timeout=30)
-        yield 0.1
-    subprocess.run(["xdotool", "mouseup", "1", "mousemove", "5", "5"], check=True, timeout=30)
-    yield 0.5
-
-
 def shot(name: str, what: str, crop_sidebar: bool) -> None:  # after `yield from settle()`
     """Screenshot of the X display: the VoRTX sidebar (PNG) or the whole window (JPEG)."""
     window, _, _ = view3d()
@@ -187,10 +176,7 @@ def workflow():
     redraw()
     yield 1.0
     yield from show_vortx_tab()
-    narrow = sidebar().width
-    yield from widen_sidebar(180)
     yield from settle()
-    check(sidebar().width > narrow + 100, f"the sidebar was widened by dragging its edge ({narrow} -> {sidebar().width} px)")
     check(sidebar().active_panel_category == "VoRTX", f"the sidebar shows the VoRTX tab ({sidebar().active_panel_category})")
     dependencies = addon("vortx_blender.dependencies")
     missing = [s.describe() for s in dependencies.status(refresh=True) if s.needs_install]
@@ -229,56 +215,58 @@ def workflow():
     shot("gui_03_posed", "Capture panel after Estimate Poses", True)
     end()
 
-    begin("Reconstruct with VoRTX, tiles shown")
+    begin("Reconstruct with VoRTX, tiles shown, then Esc")
     settings.method = "VORTX"
-    settings.voxel_size = VOXEL_SIZE
-    settings.view_count = VIEW_COUNT
+    settings.voxel_size = VORTX_VOXEL_SIZE
+    settings.view_count = VORTX_VIEW_COUNT
     settings.show_tiles = True
-    redraw()
-    yield 0.5
+    yield from settle()
     with override():
         outcome = bpy.ops.vortx.reconstruct("INVOKE_DEFAULT")
     check(outcome == {"RUNNING_MODAL"}, f"Reconstruct runs as a modal job ({outcome})")
     overlay_module = addon("vortx_blender.tile_overlay")
     jobs = addon("vortx_blender.jobs")
-    seen_running = False
+    results = addon("vortx_blender.result")
     deadline = time.time() + JOB_TIMEOUT_S
-    while jobs.active_job() is not None and time.time() < deadline:
+    counts: dict = {}
+    while jobs.active_job() is not None and time.time() < deadline and counts.get("running", 0) + counts.get("done", 0) == 0:
         overlay = overlay_module.current(scene)
         counts = overlay.counts() if overlay is not None else {}
-        if counts.get("done", 0) + counts.get("running", 0) >= 1 and not seen_running:
-            seen_running = True
-            REPORT["tiles_while_running"] = counts
-            yield from settle()
-            shot("gui_04_reconstructing", "Reconstruct running: progress in the panel and the tile grid in the viewport", False)
-            shot("gui_04_reconstructing_sidebar", "Reconstruction panel while Reconstruct runs", True)
         yield 0.2
+    check(counts.get("running", 0) + counts.get("done", 0) >= 1, f"the tile grid shows a tile running ({counts})")
+    REPORT["tiles_while_running"] = counts
+    yield from settle()
+    shot("gui_04_reconstructing", "Reconstruct running: progress in the panel and the tile grid in the viewport", False)
+    shot("gui_04_reconstructing_sidebar", "Reconstruction panel while Reconstruct runs", True)
+    # The network's tiles take many minutes on a loaded CPU: Esc (the key, over the viewport) cancels,
+    # which must leave the scene as it was.
+    objects_before = sorted(o.name for o in scene.objects)
+    window, area, _ = view3d()
+    subprocess.run(["xdotool", "mousemove", str(area.x + area.width // 3), str(window.height // 2), "key", "Escape",
+                    "mousemove", "5", "5"], check=True, timeout=30)
     yield from wait_for_job("Reconstruct")
-    results = addon("vortx_blender.result")
-    objects = results.result_objects(scene)
-    check(len(objects) == 1 and len(objects[0].data.polygons) > 0, f"a VoRTX result mesh is in the scene ({[o.name for o in objects]})")
-    recorded = json.loads(objects[0][results.PROP_SETTINGS])
-    check(recorded.get("method") == "vortx", f"the result records the method ({recorded.get('method')})")
-    check(abs(recorded.get("voxel_size", 0) - VOXEL_SIZE) < 1e-6 and recorded.get("views") == VIEW_COUNT,
-          f"the result records the panel's voxel size and view count ({recorded.get('voxel_size')}, {recorded.get('views')})")
-    check(seen_running, "the tile grid showed tiles while Reconstruct ran")
+    check(sorted(o.name for o in scene.objects) == objects_before and not results.result_objects(scene),
+          "Esc cancelled Reconstruct and the scene is unchanged (no result, same objects)")
     overlay = overlay_module.current(scene)
-    check(overlay is not None and overlay.counts()["done"] >= 1, f"the tiles end as done ({overlay.counts() if overlay else None})")
-    REPORT["vortx_faces"] = len(objects[0].data.polygons)
+    check(overlay is None or not overlay.tiles, "the cancelled run's tiles are gone from the viewport")
     end()
 
     begin("Reconstruct with Stereo (the default method)")
     settings.method = "STEREO"
-    redraw()
-    yield 0.5
+    settings.voxel_size = VOXEL_SIZE
+    settings.stereo_views = STEREO_VIEWS
+    yield from settle()
     with override():
         outcome = bpy.ops.vortx.reconstruct("INVOKE_DEFAULT")
     check(outcome == {"RUNNING_MODAL"}, f"Reconstruct runs as a modal job ({outcome})")
     yield from wait_for_job("Reconstruct")
     objects = results.result_objects(scene)
-    check(len(objects) == 1, f"the stereo result replaced the VoRTX one (Result: Replace) ({[o.name for o in objects]})")
+    check(len(objects) == 1, f"one result mesh in the scene ({[o.name for o in objects]})")
     result = objects[0]
-    check(json.loads(result[results.PROP_SETTINGS]).get("method") == "stereo", "the result records the stereo method")
+    recorded = json.loads(result[results.PROP_SETTINGS])
+    check(recorded.get("method") == "stereo", f"the result records the stereo method ({recorded.get('method')})")
+    check(abs(recorded.get("voxel_size", 0) - VOXEL_SIZE) < 1e-6 and recorded.get("stereo_views") == STEREO_VIEWS,
+          f"the result records the panels' voxel size and view count ({recorded.get('voxel_size')}, {recorded.get('stereo_views')})")
     check(len(result.data.polygons) > 1000, f"the stereo mesh has faces ({len(result.data.polygons)})")
     REPORT["stereo_faces"] = len(result.data.polygons)
     bpy.ops.object.select_all(action="DESELECT")
@@ -341,6 +329,16 @@ def workflow():
     gltf = json.loads(data[20:20 + length])
     check(len(gltf.get("images", [])) == 1 and len(gltf.get("meshes", [])) >= 1, f"the GLB has the mesh and its texture image ({len(gltf.get('images', []))} images)")
     REPORT["glb_bytes"] = len(data)
+    end()
+
+    begin("scroll the sidebar to its last panels")
+    window, _, _ = view3d()
+    region = sidebar()
+    x, y = region.x + region.width // 2, window.height - (region.y + region.height // 2)
+    subprocess.run(["xdotool", "mousemove", str(x), str(y), "click", "--repeat", "40", "--delay", "30", "5",
+                    "mousemove", "5", "5"], check=True, timeout=60)  # the mouse wheel, as a user scrolls
+    yield from settle()
+    shot("gui_08_sidebar_end", "the Model, Stereo and Advanced panels (the sidebar scrolled down)", True)
     end()
 
 

@@ -24,8 +24,9 @@ sys.path.insert(0, str(REPO / "scripts"))
 import gui_workflow  # noqa: E402  (scripts/ is not a package)
 
 STEPS = [
-    "open the VoRTX sidebar", "Import Capture", "Estimate Poses", "Reconstruct with VoRTX, tiles shown",
+    "open the VoRTX sidebar", "Import Capture", "Estimate Poses", "Reconstruct with VoRTX, tiles shown, then Esc",
     "Reconstruct with Stereo (the default method)", "Show Observation", "Bake Texture", "Export Result (GLB)",
+    "scroll the sidebar to its last panels",
 ]
 
 
