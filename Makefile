@@ -31,7 +31,7 @@ bench: venv
 	$(PY) -m engine bench
 
 # The fixed held-out development rooms (MODEL.md "Development rooms"): seeds 5001-5004 clean and
-# real, outside the repository. Re-running resumes; about 1 min per Workbench room, 15-25 min per
+# real, outside the repository. Re-running resumes; about 1-2 min per Workbench room and 30 min per
 # Cycles room on 2 busy cores.
 DEVROOMS ?= $(abspath ../devrooms)
 devrooms: venv
