@@ -189,7 +189,9 @@ def manifold_faces(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np
     and 23 folded edges (29 of its 283 faces; edge collapses leave them). The crash did not come back
     in 1,400 xatlas runs on that exact input (alone, and beside bpy and busy torch threads), so it
     depends on xatlas's thread timing too; these faces are the part of the input that breaks xatlas's
-    assumptions, so they no longer reach it (135 charts instead of 128 there).
+    assumptions, so they no longer reach it (135 charts instead of 128 there). The cost is small: on 12
+    random decimated marching-cubes blobs (250-1,900 faces, 0-356 faces cut apart) charts grew by 0-17 %
+    and the atlas utilisation moved by at most 2.4 points.
     """
     count = len(faces)
     directed = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
