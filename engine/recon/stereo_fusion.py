@@ -17,6 +17,7 @@ from ..capture import Capture
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..stereo import StereoOptions, estimate_depth_maps, fuse_depth_maps, stereo_references
 from ..stereo.depth_maps import DepthMap
+from ..stereo.fused_tsdf import drop_unsupported_pieces, fuse_stereo_evidence
 from ..stereo.vertex_evidence import attach_evidence
 from .colour import colour_mesh
 from .memory import PeakMemory
@@ -147,14 +148,23 @@ def run_stereo_fusion(
         check(cancel)
         with timer.stage("TSDF fusion"):
             origin, dims = fusion_grid(plan, maps, settings.voxel_size)
-            tsdf, weight = fuse_depth_maps(maps, origin, dims, settings.voxel_size, FUSION_TRUNCATION_VOXELS, device,
-                                           progress, cancel)
+            fused = None
+            if options.evidence_fusion:
+                fused = fuse_stereo_evidence(maps, origin, dims, settings.voxel_size, FUSION_TRUNCATION_VOXELS, device,
+                                             progress, cancel)
+                tsdf, observed = fused.tsdf, fused.surface_voxels(options.min_support)
+            else:
+                tsdf, weight = fuse_depth_maps(maps, origin, dims, settings.voxel_size, FUSION_TRUNCATION_VOXELS, device,
+                                               progress, cancel)
+                observed = weight >= MIN_OBSERVATIONS
         check(cancel)
         report(progress, "mesh", 0, 1)
         with timer.stage("mesh"):
-            observed = weight >= MIN_OBSERVATIONS
             mesh = extract_mesh(np.argwhere(observed), tsdf[observed], origin, settings.voxel_size)
-            del tsdf, weight, observed
+            if fused is not None and options.piece_min_views > 0:
+                mesh, stats["pieces"] = drop_unsupported_pieces(mesh, fused.support, origin, settings.voxel_size,
+                                                                options.piece_min_views)
+            del tsdf, observed, fused
         report(progress, "mesh", 1, 1)
         message = None
         if len(mesh.faces) == 0:

@@ -16,7 +16,7 @@ import numpy as np
 
 from ..geometry.depth_normals import depth_normals
 
-SPECKLE_STEP = 0.02  # neighbouring depths within 2 % belong to the same region
+SPECKLE_STEP = 0.05  # neighbouring depths within 5 % belong to the same region (2 % split noisy real surfaces apart)
 SPECKLE_SHARE = 0.002  # regions under 0.2 % of the image (60 pixels at 200 x 150) are speckles
 MEDIAN_SIZE = 5
 EDGE_TOLERANCE = 0.05  # a median more than 5 % away from the pixel's depth is across an edge: keep the depth

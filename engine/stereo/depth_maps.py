@@ -19,6 +19,7 @@ from ..capture import Frame
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..geometry.cameras import project_points, scale_intrinsics, world_to_camera
 from ..capture.images import load_resized, resized_size
+from .depth_filters import median_depth, remove_speckles
 from .options import StereoOptions
 from .source_views import select_sources
 from .sweep import sweep_depth
@@ -86,6 +87,27 @@ def depth_range(
     return near, far
 
 
+def ground_heights(points: Optional[np.ndarray], bounds: Optional[tuple[np.ndarray, np.ndarray]]) -> Optional[tuple[float, float]]:
+    """(lowest, highest) world z of the scene for the horizontal-plane sweep: the scene box's, else the
+    sparse points' 1st-99th percentile; None when neither is known."""
+    if bounds is not None:
+        return float(bounds[0][2]), float(bounds[1][2])
+    if points is not None and len(points) >= MIN_RANGE_POINTS:
+        lo, hi = np.percentile(points[:, 2], [1, 99])
+        return float(lo), float(hi)
+    return None
+
+
+def ground_sweep(pose: np.ndarray, count: int, heights: Optional[tuple[float, float]],
+                 device: torch.device) -> Optional[tuple[torch.Tensor, float, torch.Tensor]]:
+    """The `ground_planes` argument of `sweep_depth` for a reference at `pose`: world +Z in its camera
+    coordinates, its height, and `count` plane heights spanning the scene (None when off or unknown)."""
+    if count < 3 or heights is None or heights[1] - heights[0] < 0.1:
+        return None
+    up = torch.as_tensor(pose[:3, :3].T @ np.array([0.0, 0.0, 1.0]), dtype=torch.float32, device=device)
+    return up, float(pose[2, 3]), torch.linspace(heights[0], heights[1], count, dtype=torch.float32, device=device)
+
+
 def estimate_depth_maps(
     frames: Sequence[Frame],
     poses: np.ndarray,
@@ -116,6 +138,7 @@ def estimate_depth_maps(
             images[i] = (torch.as_tensor(grey), K)
         return images[i]
 
+    heights = ground_heights(points, bounds)
     maps: list[DepthMap] = []
     for done, r in enumerate(references):
         check(cancel)
@@ -140,9 +163,15 @@ def estimate_depth_maps(
         with torch.inference_mode():
             result = sweep_depth(reference.to(device), src_stack, torch.as_tensor(K_ref, dtype=torch.float32, device=device),
                                  K_src, src_from_ref, near_far, options.planes, options.refine_planes, options.best_k,
-                                 options.window, options.min_ncc, options.refine_rounds, cancel)
-        maps.append(DepthMap(int(r), result.depth.cpu().numpy().astype(np.float32),
-                             result.confidence.cpu().numpy().astype(np.float32), K_ref, poses[r], used, near_far))
+                                 options.window, options.min_ncc, options.refine_rounds, cancel,
+                                 ground_planes=ground_sweep(poses[r], options.ground_planes, heights, device))
+        depth = result.depth.cpu().numpy().astype(np.float32)
+        confidence = result.confidence.cpu().numpy().astype(np.float32)
+        if options.clean_depth:
+            depth = median_depth(depth)
+            speckles = remove_speckles(depth)
+            depth[speckles], confidence[speckles] = 0.0, 0.0
+        maps.append(DepthMap(int(r), depth, confidence, K_ref, poses[r], used, near_far))
     report(progress, "stereo depth", len(references), len(references))
     if options.consistency_views > 0:
         filter_consistent(maps, options.consistency_views)

@@ -8,13 +8,17 @@ FineRecon; the stereo method fuses with its own wider band (engine/recon/stereo_
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import numpy as np
 import torch
 
 from ..jobs import CancelToken, ProgressCallback
-from ..tsdf.integration import fuse_tsdf
+from ..mesh_io import Mesh
+from ..meshops import face_pieces, keep_faces
+from ..tsdf.integration import FusionEvidence, fuse_tsdf
+from .depth_filters import observation_weights
 from .depth_maps import DepthMap
 
 TRUNCATION_VOXELS = 3.0  # the ground truth's and FineRecon's; the stereo method fuses with its own
@@ -42,3 +46,66 @@ def fuse_depth_maps(
                              origin, dims, voxel_size, truncation_voxels * voxel_size, depth_cap=None, device=device,
                              progress=progress, cancel=cancel)
     return tsdf.cpu().numpy(), weight.cpu().numpy()
+
+
+@dataclass
+class FusedStereo:
+    """Depth maps fused with evidence weights (`fuse_stereo_evidence`); each array (X, Y, Z) float32."""
+
+    tsdf: np.ndarray  # ground-truth convention: negative in front of surfaces, +1 unobserved
+    observations: np.ndarray  # depth maps that updated the voxel (surface or free space)
+    support: np.ndarray  # depth maps whose surface passes within the truncation band of the voxel
+
+    def surface_voxels(self, min_support: int) -> np.ndarray:
+        """(X, Y, Z) bool: observed voxels that may take part in a surface: free space, or a voxel
+        near a surface that at least `min_support` views agree on (a surface seen by one view alone
+        is matching noise more often than a real surface: it is not meshed)."""
+        observed = self.observations > 0
+        near_surface = np.abs(self.tsdf) < 1.0
+        return observed & (~near_surface | (self.support >= min_support))
+
+
+def fuse_stereo_evidence(
+    maps: Sequence[DepthMap],
+    origin: np.ndarray,
+    dims: Sequence[int],
+    voxel_size: float,
+    truncation_voxels: float = TRUNCATION_VOXELS,
+    device: Optional[torch.device] = None,
+    progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+) -> FusedStereo:
+    """The depth maps fused with each depth weighted by its evidence (`depth_filters.observation_weights`),
+    bilinear depth lookups, and the per-voxel count of agreeing views."""
+    dims = tuple(int(d) for d in dims)
+    if not maps:
+        return FusedStereo(np.ones(dims, np.float32), np.zeros(dims, np.float32), np.zeros(dims, np.float32))
+    evidence = FusionEvidence([observation_weights(m.depth, m.confidence, m.K) for m in maps])
+    tsdf, observations = fuse_tsdf([m.depth for m in maps], np.stack([m.K for m in maps]), np.stack([m.pose for m in maps]),
+                                   origin, dims, voxel_size, truncation_voxels * voxel_size, depth_cap=None,
+                                   device=device, progress=progress, cancel=cancel, evidence=evidence)
+    return FusedStereo(tsdf.cpu().numpy(), observations.cpu().numpy(), evidence.support.cpu().numpy())
+
+
+def piece_support(mesh: Mesh, support: np.ndarray, origin: np.ndarray, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per face the connected piece it belongs to, and per piece the most views that agree on any of
+    its vertices' voxels: (face_piece (F,) int64, piece_views (P,) float32)."""
+    pieces, _ = face_pieces(mesh.faces, len(mesh.vertices))
+    index = np.clip(np.round((mesh.vertices - origin) / voxel_size).astype(np.int64), 0, np.array(support.shape) - 1)
+    vertex_views = support[index[:, 0], index[:, 1], index[:, 2]]
+    face_views = vertex_views[mesh.faces].max(axis=1)
+    piece_views = np.zeros(int(pieces.max()) + 1 if len(pieces) else 0, np.float32)
+    np.maximum.at(piece_views, pieces, face_views)
+    return pieces, piece_views
+
+
+def drop_unsupported_pieces(mesh: Mesh, support: np.ndarray, origin: np.ndarray, voxel_size: float,
+                            min_views: int) -> tuple[Mesh, dict]:
+    """The mesh without the connected pieces that fewer than `min_views` views agree on anywhere:
+    pieces go by evidence, not by size (a small real object seen by many views stays)."""
+    if len(mesh.faces) == 0:
+        return mesh, {"pieces": 0, "dropped_pieces": 0, "dropped_faces": 0}
+    pieces, piece_views = piece_support(mesh, support, origin, voxel_size)
+    keep = piece_views[pieces] >= min_views
+    return keep_faces(mesh, keep), {"pieces": int(len(piece_views)), "dropped_pieces": int((piece_views < min_views).sum()),
+                                    "dropped_faces": int((~keep).sum())}
