@@ -17,7 +17,7 @@ from engine.recon.settings import BLENDER, CLI, ReconSettings, cli_flag, field_d
 
 # Flags of each command that are not reconstruction settings.
 RECONSTRUCT_OWN = {"help", "capture", "out", "camera_height", "refine_poses", "frame", "quiet"}
-BATCH_OWN = {"help", "capture", "captures", "out", "export", "camera_height", "skip_poses", "refine_poses", "vr"}
+BATCH_OWN = {"help", "capture", "captures", "out", "export", "camera_height", "skip_poses", "refine_poses", "vr", "ray", "ray_cpus"}
 # scene.vortx properties that are not ReconSettings fields: the capture summary, pose estimation,
 # the weights chooser (-> ReconSettings.weights), the tile overlay and the Blender-side result options.
 BLENDER_OWN = {
