@@ -12,6 +12,7 @@ packages (several GB: torch's CUDA build).
 from __future__ import annotations
 
 import sys
+import os
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +33,11 @@ STEPS = [
 
 @pytest.fixture(scope="module")
 def gui_root() -> Path:
+    # The windowed run takes 30+ minutes on a 2-core machine (SfM, reconstruction, bake in a real
+    # Blender): far past the suite's budget, so it runs only when asked for.
+    if os.environ.get("VORTX_GUI_TEST") != "1":
+        pytest.skip("the real-window workflow runs only with VORTX_GUI_TEST=1 (30+ minutes; needs the "
+                    "chroot of ../shared/tools/gui_blender_setup.sh)")
     root = gui_workflow.default_root()
     try:
         gui_workflow.check_root(root)
