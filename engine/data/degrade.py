@@ -8,7 +8,10 @@ passed through `degrade_photo`, in the order a camera applies it:
    is then multiplicative and blur is physical);
 2. motion blur along the camera's rotation direction, and defocus (a disc) whose radius rolls
    slowly over the sequence, as autofocus hunts;
-3. exposure and white balance that drift as smooth random walks (auto-exposure, auto white balance);
+3. auto-exposure: each photo is metered and brought to a phone's mid-grey target (`auto_exposure_gain`;
+   a render is exposed for the room's lights, which leaves dim rooms nearly black, while a phone
+   exposes every photo for what it sees), then exposure and white balance drift as smooth random
+   walks around it (auto-exposure hunting, auto white balance);
 4. sensor noise in linear light: shot noise (variance proportional to the signal) + read noise;
 5. the sRGB tone curve, 8 bits, and JPEG at the room's quality (75-90, what phones write).
 
@@ -44,6 +47,10 @@ class DegradationSettings:
     exposure_step_stops: float = 0.08  # random-walk step of the exposure per frame (stops)
     white_balance_step: float = 0.015  # random-walk step of the red and blue log gains per frame
     walk_smoothing_frames: float = 2.0  # Gaussian smoothing of the walks (frames): no jumps
+    # Auto-exposure: the centre-weighted mean linear luminance is brought to mid-grey (18 %, about
+    # 118 in sRGB), within the gains a phone reaches by exposure time and ISO (1/2 to 16 x).
+    auto_exposure_target: float = 0.18
+    auto_exposure_gain_range: tuple[float, float] = (0.5, 16.0)
     pose_rotation_deg: tuple[float, float] = (0.5, 2.0)  # per-frame pose error: rotation angle
     pose_translation_m: tuple[float, float] = (0.01, 0.03)  # ... and camera-centre offset
 
@@ -204,6 +211,18 @@ def _image_motion_angles(poses: np.ndarray) -> np.ndarray:
     return angles
 
 
+def auto_exposure_gain(linear: np.ndarray, settings: DegradationSettings) -> float:
+    """The gain a phone's auto-exposure applies to a linear image (H, W, 3): centre-weighted mean
+    luminance (a Gaussian window of half the image's size, as phones meter) to the mid-grey target."""
+    h, w = linear.shape[:2]
+    luminance = linear @ np.array([0.2126, 0.7152, 0.0722], np.float32)  # Rec. 709 / sRGB primaries
+    y, x = np.mgrid[0:h, 0:w].astype(np.float32)
+    weight = np.exp(-0.5 * (((x - (w - 1) / 2) / (0.5 * w)) ** 2 + ((y - (h - 1) / 2) / (0.5 * h)) ** 2))
+    metered = float((luminance * weight).sum() / weight.sum())
+    low, high = settings.auto_exposure_gain_range
+    return float(np.clip(settings.auto_exposure_target / max(metered, 1e-6), low, high))
+
+
 def degrade_photo(rgb: np.ndarray, frame: FrameDegradation, settings: DegradationSettings,
                   rng: np.random.Generator) -> np.ndarray:
     """A clean render uint8 (H, W, 3) sRGB -> the photo a camera would have written (uint8, before
@@ -211,7 +230,8 @@ def degrade_photo(rgb: np.ndarray, frame: FrameDegradation, settings: Degradatio
     linear = srgb_to_linear(np.asarray(rgb, np.float32) / 255.0)
     linear = blur(linear, motion_blur_kernel(frame.motion_blur_px, frame.motion_blur_angle_deg))
     linear = blur(linear, defocus_kernel(frame.defocus_radius_px))
-    gains = np.float32(2.0 ** frame.exposure_stops) * np.asarray(frame.white_balance, np.float32)
+    exposure = auto_exposure_gain(linear, settings) * 2.0 ** frame.exposure_stops
+    gains = np.float32(exposure) * np.asarray(frame.white_balance, np.float32)
     linear = add_sensor_noise(linear * gains, settings.shot_noise, settings.read_noise, rng)
     return np.round(linear_to_srgb(np.clip(linear, 0.0, 1.0)) * 255.0).astype(np.uint8)
 

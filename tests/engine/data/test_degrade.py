@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 import pytest
 
-from engine.colour_space import srgb_to_linear
+from engine.colour_space import linear_to_srgb, srgb_to_linear
 from engine.data.degrade import (DegradationSettings, FrameDegradation, add_sensor_noise, blur, defocus_kernel,
                                  degrade_photo, encode_jpeg, motion_blur_kernel, perturb_pose, perturb_poses,
                                  plan_degradations, pose_error, smooth_random_walk, write_jpeg)
@@ -112,15 +112,38 @@ def test_exposure_and_white_balance_drift_smoothly():
 
 def test_degraded_photo_is_darker_with_lower_exposure_and_noisy():
     clean = np.full((64, 64, 3), 128, np.uint8)
-    frame = FrameDegradation(-1.0, (1.0, 1.0, 1.0), 0.0, 0.0, 0.0, 90)
-    photo = degrade_photo(clean, frame, DegradationSettings(), np.random.default_rng(0))
+    settings = DegradationSettings()
+    metered = degrade_photo(clean, FrameDegradation(0.0, (1.0, 1.0, 1.0), 0.0, 0.0, 0.0, 90), settings,
+                            np.random.default_rng(0))
+    photo = degrade_photo(clean, FrameDegradation(-1.0, (1.0, 1.0, 1.0), 0.0, 0.0, 0.0, 90), settings,
+                          np.random.default_rng(0))
     assert photo.dtype == np.uint8 and photo.shape == clean.shape
-    linear_mean = srgb_to_linear(photo / 255.0).mean()
-    assert linear_mean == pytest.approx(srgb_to_linear(np.float32(128 / 255)) / 2, rel=0.03)  # one stop down
+    # One stop of drift below what the auto-exposure chose halves the linear light.
+    assert srgb_to_linear(photo / 255.0).mean() == pytest.approx(srgb_to_linear(metered / 255.0).mean() / 2, rel=0.03)
     assert photo.std() > 1.0
-    warm = degrade_photo(clean, FrameDegradation(0.0, (1.2, 1.0, 0.8), 0.0, 0.0, 0.0, 90), DegradationSettings(),
+    warm = degrade_photo(clean, FrameDegradation(0.0, (1.2, 1.0, 0.8), 0.0, 0.0, 0.0, 90), settings,
                          np.random.default_rng(0)).reshape(-1, 3).mean(0)
-    assert warm[0] > 128 + 10 and warm[2] < 128 - 10 and abs(warm[1] - 128) < 2
+    neutral = metered.reshape(-1, 3).mean(0)
+    assert warm[0] > neutral[0] + 10 and warm[2] < neutral[2] - 10 and abs(warm[1] - neutral[1]) < 2
+
+
+def test_auto_exposure_brings_a_dim_render_to_mid_grey_as_a_phone_does():
+    """A render exposed for the room's lights can be nearly black (a dim room at -0.8 stops); a phone
+    meters each photo and exposes it for mid-grey, whatever the render's exposure was."""
+    rng = np.random.default_rng(1)
+    scene = rng.uniform(0.02, 0.5, (48, 64, 3)).astype(np.float32)  # linear reflectances x light
+    frame = FrameDegradation(0.0, (1.0, 1.0, 1.0), 0.0, 0.0, 0.0, 90)
+    means = []
+    for stops in (-3.0, -1.5, 0.0):
+        render = np.round(linear_to_srgb(scene * 2.0 ** stops) * 255).astype(np.uint8)
+        photo = degrade_photo(render, frame, DegradationSettings(), np.random.default_rng(0))
+        luminance = srgb_to_linear(photo / 255.0) @ np.array([0.2126, 0.7152, 0.0722])
+        means.append(luminance.mean())
+    assert np.ptp(means) < 0.1 * np.mean(means)  # the photo's brightness no longer depends on the render's
+    assert means[0] == pytest.approx(0.18, rel=0.15)  # mid-grey: about 118 in sRGB
+    # A render darker than the phone's highest gain stays dark (a phone cannot see in the dark).
+    black = np.full((48, 64, 3), 1, np.uint8)
+    assert degrade_photo(black, frame, DegradationSettings(), np.random.default_rng(0)).mean() < 60
 
 
 def test_pose_error_has_the_requested_size():
