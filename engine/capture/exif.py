@@ -62,6 +62,22 @@ def _exif_tag(exif: Image.Exif, tag: int) -> Optional[float]:
     return number if number is not None and math.isfinite(number) and number > 0 else None
 
 
+def focal_35mm_equivalent(focal_px: float, width: int, height: int) -> int:
+    """The EXIF FocalLengthIn35mmFilm a camera writes for a focal length in pixels: the same angle of
+    view on a 36 x 24 mm frame (by the diagonal), in whole millimetres as phones round it."""
+    return int(round(focal_px * _FILM_DIAGONAL_MM / math.hypot(width, height)))
+
+
+def focal_exif_block(focal_px: float, width: int, height: int) -> bytes:
+    """A JPEG APP1 payload ("Exif\\0\\0" + TIFF) holding just the 35 mm-equivalent focal length, what
+    a phone photo tells about its lens (`focal_length_pixels` reads it back)."""
+    from PIL import ExifTags, Image
+
+    exif = Image.Exif()
+    exif.get_ifd(ExifTags.IFD.Exif)[_FOCAL_LENGTH_35MM] = focal_35mm_equivalent(focal_px, width, height)
+    return exif.tobytes()
+
+
 def focal_length_pixels(exif: Image.Exif, stored_width: int, stored_height: int) -> Optional[float]:
     """Focal length in pixels of the stored image, or None when EXIF does not determine it.
 

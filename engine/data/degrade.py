@@ -13,7 +13,8 @@ passed through `degrade_photo`, in the order a camera applies it:
    exposes every photo for what it sees), then exposure and white balance drift as smooth random
    walks around it (auto-exposure hunting, auto white balance);
 4. sensor noise in linear light: shot noise (variance proportional to the signal) + read noise;
-5. the sRGB tone curve, 8 bits, and JPEG at the room's quality (75-90, what phones write).
+5. the sRGB tone curve, 8 bits, and JPEG at the room's quality (75-90, what phones write), with the
+   EXIF a phone writes about its lens (the 35 mm-equivalent focal length, whole millimetres).
 
 The poses written with the photos get a per-frame error (`perturb_pose`), as SfM or a phone's
 tracking would give; the true poses stay beside them for scoring. Every function takes its random
@@ -25,7 +26,7 @@ from __future__ import annotations
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Sequence
+from typing import Optional, Sequence
 
 import cv2
 import numpy as np
@@ -143,12 +144,23 @@ def encode_jpeg(rgb: np.ndarray, quality: int) -> bytes:
     return data.tobytes()
 
 
-def write_jpeg(path: Path, rgb: np.ndarray, quality: int) -> None:
-    """Atomic (tmp + rename): a frame's photo is either complete or absent."""
+def with_exif(jpeg: bytes, exif: bytes) -> bytes:
+    """JPEG bytes with an APP1 segment holding `exif` ("Exif\\0\\0" + TIFF) right after the start of image."""
+    if jpeg[:2] != b"\xff\xd8":
+        raise ValueError("not a JPEG (no start-of-image marker)")
+    if len(exif) + 2 > 0xFFFF:
+        raise ValueError(f"EXIF block of {len(exif)} bytes does not fit one APP1 segment")
+    return jpeg[:2] + b"\xff\xe1" + (len(exif) + 2).to_bytes(2, "big") + exif + jpeg[2:]
+
+
+def write_jpeg(path: Path, rgb: np.ndarray, quality: int, exif: Optional[bytes] = None) -> None:
+    """Atomic (tmp + rename): a frame's photo is either complete or absent. `exif`: an APP1 payload
+    (e.g. `engine.capture.exif.focal_exif_block`), as a phone writes with its photos."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.tmp.jpg")
-    tmp.write_bytes(encode_jpeg(rgb, quality))
+    data = encode_jpeg(rgb, quality)
+    tmp.write_bytes(with_exif(data, exif) if exif is not None else data)
     os.replace(tmp, path)
 
 

@@ -33,6 +33,7 @@ import numpy as np
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import write_ply
 from . import scannet_layout as layout
+from ..capture.exif import focal_exif_block
 from .degrade import DegradationSettings, degrade_photo, frame_rng, perturb_poses, plan_degradations, write_jpeg
 from .geometry import room_parts
 from .render import RenderSettings, RoomRenderer, bpy_version
@@ -148,6 +149,7 @@ def synthesize_room(
         degradations = plan_degradations(poses, settings.width, options.degradation,
                                          np.random.default_rng([seed, 6]))
         given_poses = perturb_poses(poses, options.degradation, seed)
+        lens_exif = focal_exif_block(float(K[0, 0]), settings.width, settings.height)
         _write_json_atomic(work / "degradations.json", {"frames": [vars(d) for d in degradations]})
     times: list[float] = []
     t_start = time.perf_counter()
@@ -161,7 +163,7 @@ def synthesize_room(
                     clean = layout.clean_color_path(work, i)
                     depth = renderer.render(pose, clean)
                     photo = degrade_photo(_read_rgb(clean), degradations[i], options.degradation, frame_rng(seed, i))
-                    write_jpeg(layout.color_path(work, i), photo, degradations[i].jpeg_quality)
+                    write_jpeg(layout.color_path(work, i), photo, degradations[i].jpeg_quality, lens_exif)
                     layout.write_pose(work, i, pose, folder=layout.TRUE_POSE_DIR)
                 else:
                     depth = renderer.render(pose, layout.color_path(work, i))

@@ -157,3 +157,17 @@ def test_pose_error_has_the_requested_size():
     assert np.all((errors[:, 1] >= 0.01 - 1e-9) & (errors[:, 1] <= 0.03 + 1e-9))
     assert np.allclose(moved[:, :3, :3] @ moved[:, :3, :3].transpose(0, 2, 1), np.eye(3), atol=1e-9)
     assert np.array_equal(moved, perturb_poses(poses, DegradationSettings(), seed=5))  # seeded
+
+
+def test_photos_carry_the_lens_exif_a_phone_writes(tmp_path):
+    """The 35 mm-equivalent focal length, rounded as phones round it, read back by the photo loader."""
+    from engine.capture import load_capture
+    from engine.capture.exif import focal_exif_block
+
+    focal = 0.5 * 64 / np.tan(np.radians(30.0))  # 60 degrees across 64 px
+    for i in range(2):
+        image = np.random.default_rng(i).integers(0, 255, (48, 64, 3), dtype=np.uint8)
+        write_jpeg(tmp_path / f"{i:06d}.jpg", image, 85, focal_exif_block(focal, 64, 48))
+    frames = load_capture(tmp_path).frames
+    assert cv2.imread(str(tmp_path / "000000.jpg")).shape == (48, 64, 3)  # still a JPEG any reader opens
+    assert frames[0].K is not None and frames[0].K[0, 0] == pytest.approx(focal, rel=0.02)
