@@ -33,10 +33,10 @@ STEPS = [
 
 @pytest.fixture(scope="module")
 def gui_root() -> Path:
-    # The windowed run takes 30+ minutes on a 2-core machine (SfM, reconstruction, bake in a real
+    # The windowed run takes 15-30 minutes on a 2-core machine (SfM, reconstruction, bake in a real
     # Blender): far past the suite's budget, so it runs only when asked for.
     if os.environ.get("VORTX_GUI_TEST") != "1":
-        pytest.skip("the real-window workflow runs only with VORTX_GUI_TEST=1 (30+ minutes; needs the "
+        pytest.skip("the real-window workflow runs only with VORTX_GUI_TEST=1 (about 15 minutes on 2 cores; needs the "
                     "chroot of ../shared/tools/gui_blender_setup.sh)")
     root = gui_workflow.default_root()
     try:
