@@ -5,7 +5,9 @@ is in vortx_blender."""
 import bpy
 from bpy.props import BoolProperty, FloatProperty, StringProperty
 
-from ..engine.errors import CaptureError, PoseError
+from ..engine.errors import CaptureError, PoseError, VortxError
+from ..engine.recon.output_frame import SFM_HAS_NO_CAPTURE_FRAME, capture_frame_missing
+from ..vortx_blender import frame as frames
 from ..vortx_blender.cameras import move_capture_cameras, posed_capture_from_scene
 from ..vortx_blender.capture import (
     ImportedCapture,
@@ -21,6 +23,7 @@ from ..vortx_blender.job_operator import JobOperatorMixin
 from ..vortx_blender.jobs import JobFunction
 from ..vortx_blender.point_cloud import apply_point_cloud, checked_points, find_point_cloud
 from ..vortx_blender.poses import PosedCapture, PoseSettings, RefinedPoses, estimate_poses_job, refine_poses_job
+from ..vortx_blender.properties import recon_field, recon_property
 from ..vortx_blender.scale import picked_points, set_scale
 
 # Files a capture can be chosen by; a folder is chosen by accepting the browser with no file selected.
@@ -45,10 +48,15 @@ class VORTX_OT_import_capture(JobOperatorMixin, bpy.types.Operator):
     directory: StringProperty(subtype="DIR_PATH", options={"SKIP_SAVE", "HIDDEN"})
     filter_glob: StringProperty(default=CAPTURE_FILE_GLOB, options={"HIDDEN"})
     filter_folder: BoolProperty(default=True, options={"HIDDEN"})
+    # The scene's Coordinates setting (ReconSettings.frame), offered in the file browser too; when a
+    # script leaves it out, the scene's setting holds.
+    output_frame: recon_property(recon_field("frame"), options={"SKIP_SAVE"})
 
     def invoke(self, context: bpy.types.Context, event: bpy.types.Event) -> set[str]:
         if not self.filepath and context.scene.vortx.capture_path:
             self.filepath = context.scene.vortx.capture_path
+        if not self.properties.is_property_set("output_frame"):
+            self.output_frame = context.scene.vortx.output_frame
         context.window_manager.fileselect_add(self)  # then Blender calls execute, which goes modal
         return {"RUNNING_MODAL"}
 
@@ -57,12 +65,19 @@ class VORTX_OT_import_capture(JobOperatorMixin, bpy.types.Operator):
         if path is None:
             raise CaptureError("Choose a capture folder or file (transforms.json, a video, ...)")
         self._path = path
-        return import_capture_job(path, camera_height=scene_camera_height(context.scene.vortx))
+        settings = context.scene.vortx
+        self._frame = self.output_frame if self.properties.is_property_set("output_frame") else settings.output_frame
+        return import_capture_job(path, camera_height=scene_camera_height(settings), frame=self._frame.lower())
 
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: ImportedCapture) -> set[str]:
         prepared = result.prepared
+        missing = capture_frame_missing(prepared)
+        if self._frame == frames.CAPTURE and missing is not None:
+            raise frames.unavailable(missing)  # before anything changes
         applied = apply_prepared(scene, prepared, self._path)
         record_capture_frame(scene, prepared)
+        scene.vortx.output_frame = self._frame
+        frames.show_frame(scene)  # the cameras and points into the chosen coordinates (also when unchanged)
         remember_loaded_capture(scene, self._path, result.loaded)
         for line in prepared.report_lines:
             print(line)
@@ -86,6 +101,9 @@ class VORTX_OT_estimate_poses(JobOperatorMixin, bpy.types.Operator):
         if not context.scene.vortx.capture_path:
             cls.poll_message_set("Import a capture first")
             return False
+        if context.scene.vortx.output_frame == frames.CAPTURE:
+            cls.poll_message_set(_SFM_KEEPS_NO_CAPTURE_FRAME)
+            return False
         return True
 
     def make_job_function(self, context: bpy.types.Context) -> JobFunction:
@@ -93,13 +111,21 @@ class VORTX_OT_estimate_poses(JobOperatorMixin, bpy.types.Operator):
         return estimate_poses_job(settings, loaded_capture(context.scene, settings.capture_path))
 
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: PosedCapture) -> set[str]:
+        if scene.vortx.output_frame == frames.CAPTURE:  # chosen while structure from motion ran
+            raise VortxError(_SFM_KEEPS_NO_CAPTURE_FRAME + "; nothing was changed")
         applied = apply_prepared(scene, result.prepared, result.capture_path)
         record_capture_frame(scene, result.prepared)  # none of its own: SfM made the poses
+        frames.show_frame(scene)
         remember_loaded_capture(scene, result.capture_path, result.loaded)
         if result.report:
             print(result.report)  # the full SfM report (per-image registration, errors) for the console
         _report_applied(self, f"Estimated poses: {applied.message(result.capture)}", result.warnings + applied.warnings)
         return {"FINISHED"}
+
+
+# Why Estimate Poses cannot run while the scene shows the capture's own coordinates.
+_SFM_KEEPS_NO_CAPTURE_FRAME = (f"Coordinates is set to Capture, which Estimate Poses cannot keep: {SFM_HAS_NO_CAPTURE_FRAME}. "
+                               "Set Coordinates to World (Capture panel) first")
 
 
 def _has_capture_cameras(cls: type, context: bpy.types.Context) -> bool:

@@ -10,7 +10,7 @@ Poses (only when no frame has a pose), Refine Poses (with --refine-poses), Recon
 (with --vr: the VR preset, a mesh decimated to --face-budget with a --texture-size photo texture);
 then saves the .blend and, with --export, writes the mesh as GLB, PLY or OBJ (metres, Z up for
 PLY/OBJ; glTF is Y-up by specification and converts back on import; with --vr, GLB/glTF and OBJ carry
-the texture). Uses the `vortx` extension this Blender has
+the texture; with --frame capture, the scene and the mesh are in the capture's own coordinates). Uses the `vortx` extension this Blender has
 installed; otherwise this checkout is mounted as a temporary local extension repository
 (scripts/_extension_dev.py, as the tests do).
 
@@ -340,6 +340,9 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
     scene = bpy.context.scene
     settings = scene.vortx
     settings.camera_height = args.camera_height  # scales the poses Estimate Poses finds
+    # --frame: Import Capture shows the capture in these coordinates (and refuses 'capture' for photos
+    # without poses, as `engine reconstruct` does); the export writes the mesh in them.
+    settings.output_frame = args.settings.frame.upper()
 
     started = time.perf_counter()
     with step("import capture"):

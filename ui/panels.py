@@ -14,6 +14,7 @@ import bpy
 from ..engine.texture.options import MOBILE_TEXTURE_SIZE, TextureOptions
 from ..vortx_blender import jobs
 from ..vortx_blender import result as results
+from ..vortx_blender.frame import capture_frame_note
 from ..vortx_blender.jobs import Job
 from ..vortx_blender.properties import recon_property_names
 from ..vortx_blender.texture import bake_summary
@@ -56,6 +57,15 @@ def _wrapped(layout: Any, text: str, icon: str) -> None:
 
 def draw_capture(layout: Any, settings: Any, job: Optional[Job]) -> None:
     layout.operator("vortx.import_capture", icon="FILE_FOLDER")
+    # The coordinates the capture is shown (and the result exported) in: an import option that also
+    # moves an imported capture at once. Greyed out, with the reason, when the capture has none of its own.
+    row = layout.row()
+    row.label(text="Coordinates")
+    row.prop(settings, "output_frame", expand=True)
+    note = capture_frame_note(settings)
+    if note is not None:
+        row.enabled = False
+        _wrapped(layout, f"No capture coordinates: {note}", "INFO")
     if settings.capture_path:
         box = layout.box()
         col = box.column(align=True)
@@ -158,10 +168,11 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
         layout.label(text=f"Textured: {baked['texture_size']} px, {baked['stats'].get('faces', '?')} faces", icon="CHECKMARK")
 
 
-# Reconstruction settings laid out in the Reconstruction, Model and Result panels; the stereo method's
-# settings (stereo_*) appear in the Stereo panel and every other ReconSettings field offered to
-# Blender under Advanced, each by itself in declaration order.
-DRAWN_ELSEWHERE = ("method", "voxel_size", "view_count", "tile_size", "device", "seed", "texture_size", "face_budget")
+# Reconstruction settings laid out in the Reconstruction, Model and Result panels (the coordinates in the
+# Capture panel); the stereo method's settings (stereo_*) appear in the Stereo panel and every other
+# ReconSettings field offered to Blender under Advanced, each by itself in declaration order.
+DRAWN_ELSEWHERE = ("method", "voxel_size", "view_count", "tile_size", "device", "seed", "texture_size", "face_budget",
+                   "output_frame")
 STEREO_PREFIX = "stereo_"
 
 

@@ -195,12 +195,34 @@ def plan_capture_cameras(capture: Capture) -> CameraPlan:
 # Blender side
 
 
-def find_capture_collection(scene: "bpy.types.Scene") -> Optional["bpy.types.Collection"]:
-    """The collection this extension made for `scene`'s capture (found by tag, so renaming it is fine)."""
+def find_tagged_collection(scene: "bpy.types.Scene", tag: str) -> Optional["bpy.types.Collection"]:
+    """The collection of `scene` marked with custom property `tag` (found by tag, so renaming it is fine)."""
     for collection in scene.collection.children_recursive:
-        if collection.get(COLLECTION_TAG):
+        if collection.get(tag):
             return collection
     return None
+
+
+def ensure_tagged_collection(scene: "bpy.types.Scene", tag: str, name: str) -> "bpy.types.Collection":
+    """`find_tagged_collection`, or a new collection `name` marked with `tag` in the scene."""
+    import bpy
+
+    collection = find_tagged_collection(scene, tag)
+    if collection is None:
+        collection = bpy.data.collections.new(name)
+        collection[tag] = True
+        scene.collection.children.link(collection)
+    return collection
+
+
+def find_capture_collection(scene: "bpy.types.Scene") -> Optional["bpy.types.Collection"]:
+    """The collection this extension made for `scene`'s capture."""
+    return find_tagged_collection(scene, COLLECTION_TAG)
+
+
+def ensure_capture_collection(scene: "bpy.types.Scene") -> "bpy.types.Collection":
+    """The capture collection of `scene`, made when there is none."""
+    return ensure_tagged_collection(scene, COLLECTION_TAG, CAPTURE_COLLECTION_NAME)
 
 
 def is_capture_camera(obj: "bpy.types.Object") -> bool:
@@ -219,17 +241,14 @@ def remove_capture_cameras(collection: "bpy.types.Collection") -> None:
 
 
 def apply_camera_plan(scene: "bpy.types.Scene", plan: CameraPlan) -> list["bpy.types.Object"]:
-    """Replace the scene's capture cameras with `plan`'s and set the render format to match."""
+    """Replace the scene's capture cameras with `plan`'s and set the render format to match. The
+    cameras are placed in the coordinates the scene shows (frame.py)."""
     import bpy
-    from mathutils import Matrix
 
-    collection = find_capture_collection(scene)
-    if collection is None:
-        collection = bpy.data.collections.new(CAPTURE_COLLECTION_NAME)
-        collection[COLLECTION_TAG] = True
-        scene.collection.children.link(collection)
-    else:
-        remove_capture_cameras(collection)
+    from .frame import place_camera
+
+    collection = ensure_capture_collection(scene)
+    remove_capture_cameras(collection)
 
     objects = []
     for spec in plan.cameras:
@@ -244,7 +263,7 @@ def apply_camera_plan(scene: "bpy.types.Scene", plan: CameraPlan) -> list["bpy.t
         data.clip_end = 1000.0
         data.display_size = 0.1  # rooms are a few metres across; default 1 m frustums would clutter them
         obj = bpy.data.objects.new(spec.name, data)
-        obj.matrix_world = Matrix(spec.matrix_world.tolist())
+        place_camera(obj, scene, spec.matrix_world)
         frame = spec.frame
         obj[PROP_FRAME] = spec.frame_index
         obj[PROP_IMAGE] = str(frame.image_path)
@@ -278,11 +297,11 @@ def capture_cameras(scene: "bpy.types.Scene") -> list["bpy.types.Object"]:
 def move_capture_cameras(scene: "bpy.types.Scene", poses: list[np.ndarray]) -> None:
     """Give the capture cameras (frame order) new camera-to-world `poses` (4, 4), keeping the objects
     (their names, selection and anything the user attached to them)."""
-    from mathutils import Matrix
+    from .frame import place_camera
 
     for obj, pose in zip(capture_cameras(scene), poses, strict=True):
         obj[PROP_POSE] = np.asarray(pose, dtype=np.float64).ravel().tolist()
-        obj.matrix_world = Matrix(blender_matrix_from_pose(pose).tolist())
+        place_camera(obj, scene, blender_matrix_from_pose(pose))
 
 
 def build_capture_cameras(scene: "bpy.types.Scene", capture: Capture) -> tuple[list["bpy.types.Object"], list[str]]:

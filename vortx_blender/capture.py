@@ -18,14 +18,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
-import numpy as np
-
 from ..engine import capture as engine_capture
 from ..engine.capture import Capture
 from ..engine.jobs import CancelToken, ProgressCallback
-from ..engine.poses.align import Similarity
 from ..engine.poses.prepare import SFM_NEVER, PreparedCapture, prepare_capture
-from ..engine.recon.output_frame import FRAME_WORLD, frame_record, similarity_from_record, similarity_record
+from ..engine.recon.output_frame import FRAME_CAPTURE, FRAME_WORLD, NO_POSES_NO_CAPTURE_FRAME, frame_record
 from .cameras import apply_camera_plan, plan_capture_cameras
 from .jobs import JobFunction
 from .point_cloud import apply_point_cloud, checked_points
@@ -101,19 +98,9 @@ def scene_camera_height(settings: object) -> float:
 def record_capture_frame(scene: "bpy.types.Scene", prepared: PreparedCapture) -> None:
     """scene.vortx.capture_frame: the similarity between the capture's own coordinates and the world its
     cameras were just placed in (`frame_record`, as `engine reconstruct`'s sidecar has it), so the batch
-    report and scripts can map the result back over the capture's cameras."""
+    report and scripts can map the result back over the capture's cameras. Recorded for the world here;
+    `frame.show_frame` then records (and shows) the coordinates scene.vortx.output_frame asks for."""
     scene.vortx.capture_frame = json.dumps(frame_record(prepared, FRAME_WORLD))
-
-
-def rescale_capture_frame(settings: object, factor: float) -> None:
-    """scene.vortx.capture_frame after the world was scaled by `factor` about its origin (Set Scale)."""
-    if not settings.capture_frame:
-        return
-    record = json.loads(settings.capture_frame)
-    capture_to_world = similarity_from_record(record["capture_to_world"])
-    if capture_to_world is not None:
-        scaled = capture_to_world.then(Similarity(np.eye(3), np.zeros(3), float(factor)))
-        settings.capture_frame = json.dumps(similarity_record(scaled, FRAME_WORLD, Similarity.identity()))
 
 
 @dataclass(frozen=True)
@@ -122,14 +109,19 @@ class ImportedCapture:
     prepared: PreparedCapture  # Z up and scaled: what the scene's cameras show
 
 
-def import_capture_job(path: Path, camera_height: float) -> JobFunction:
+def import_capture_job(path: Path, camera_height: float, frame: str = FRAME_WORLD) -> JobFunction:
     """A job function loading the capture at `path` (photo checks, video frames, undistortion can
     take minutes, hence a job rather than a plain call) and preparing its posed frames (never SfM:
-    that is the Estimate Poses button)."""
+    that is the Estimate Poses button). frame: the coordinates it is to be shown in; FRAME_CAPTURE for
+    photos without poses is refused as soon as they are loaded."""
 
     def run(progress: ProgressCallback, cancel: CancelToken) -> ImportedCapture:
         loaded = engine_capture.load_capture(path, progress=progress, cancel=cancel)
         cancel.check()
+        if frame == FRAME_CAPTURE and not loaded.posed_frames:  # before the pose check spends seconds
+            from .frame import unavailable
+
+            raise unavailable(NO_POSES_NO_CAPTURE_FRAME)
         # Given poses are checked against the photos here (seconds), so the panel can say when they look off.
         return ImportedCapture(loaded, prepare_capture(loaded, camera_height=camera_height, sfm=SFM_NEVER,
                                                        progress=progress, cancel=cancel, check_poses=True))

@@ -1,15 +1,19 @@
 """Export a result mesh to GLB/glTF, PLY or OBJ with the options that keep it a faithful room.
 
-All three keep metres (scale 1, modifiers and the object transform applied) and the vertex colours:
+All three keep the scene's units (scale 1, modifiers and the object's world transform applied) and the
+vertex colours. The world transform puts the mesh in the coordinates the scene shows (frame.py): the
+Z-up world in metres, or with Coordinates = Capture the capture's own (the frame empty's transform),
+as `engine reconstruct --frame` writes them; the object's `vortx_frame` record says which.
 - PLY and OBJ are written in Blender's own axes (forward +Y, up +Z), so file coordinates equal the
-  world coordinates in metres with Z up, the convention of the engine and of its PLY files. (OBJ's
-  exporter defaults to Y up; that default is overridden.) Colours are sRGB bytes / floats, as the
-  photos were.
+  scene's coordinates: the world in metres with Z up, the convention of the engine and of its PLY
+  files, or the capture's. (OBJ's exporter defaults to Y up; that default is overridden.) Colours are
+  sRGB bytes / floats, as the photos were.
 - glTF is Y-up by specification, and VR viewers rely on it: the exporter's +Y-up conversion stays
   on, so the room stands upright in a headset, and importing the file back into Blender gives the
   same Z-up world coordinates. Vertex colours go into COLOR_0 (linear, as glTF requires), the
   confidence layer into `_OBSERVATIONS`, `_STEREO_CONFIDENCE`, `_COMPLETED` (as in the engine's GLB),
-  and the object's `vortx_*` custom properties into the node's extras (provenance travels with the file).
+  and the object's `vortx_*` custom properties into the node's extras (provenance and the frame record
+  travel with the file). The world transform becomes the node's transform (identity in the world).
 
 A result with a baked photo texture (vortx_blender/texture.py) exports it instead of the vertex
 colours: glTF gets TEXCOORD_0 and a material whose base colour texture is the photo texture (PNG, as

@@ -8,8 +8,9 @@ point colour attribute:
   turns them into points there, which Solid mode draws with the attribute colours
   (Viewport Shading > Color > Attribute).
 
-The object's vertices are the capture's points in world coordinates (the object keeps an identity
-transform), so `scene_points` reads them back exactly as the engine wrote them, up to float32.
+The object's vertices are the capture's points in the engine's world coordinates (the object keeps an
+identity transform relative to that world: under the frame empty when the scene shows the capture's
+own coordinates, frame.py), so `scene_points` reads them back exactly as the engine wrote them, up to float32.
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ from typing import TYPE_CHECKING, Optional
 
 import numpy as np
 
-from .cameras import CAPTURE_COLLECTION_NAME, COLLECTION_TAG, find_capture_collection
+from .cameras import ensure_capture_collection, find_capture_collection
+from .frame import engine_matrix, place_new
 
 if TYPE_CHECKING:
     import bpy
@@ -43,7 +45,7 @@ def find_point_cloud(scene: "bpy.types.Scene") -> Optional["bpy.types.Object"]:
 
 
 def scene_points(scene: "bpy.types.Scene") -> tuple[Optional[np.ndarray], Optional[np.ndarray]]:
-    """(points (N, 3) float64 world, colours (N, 3) uint8) of the scene's sparse points, or (None, None)."""
+    """(points (N, 3) float64 in the engine's world, colours (N, 3) uint8) of the scene's sparse points, or (None, None)."""
     obj = find_point_cloud(scene)
     if obj is None:
         return None, None
@@ -62,7 +64,7 @@ def scene_points(scene: "bpy.types.Scene") -> tuple[Optional[np.ndarray], Option
             rgba = np.empty(4 * len(local), dtype=np.float32)
             attribute.data.foreach_get("color", rgba)
             rgba = rgba.reshape(-1, 4)
-    matrix = np.array(obj.matrix_world, dtype=np.float64)
+    matrix = engine_matrix(obj, scene)
     points = local.astype(np.float64) @ matrix[:3, :3].T + matrix[:3, 3]
     colours = None
     if rgba is not None and len(rgba):
@@ -112,11 +114,7 @@ def apply_point_cloud(scene: "bpy.types.Scene", points: Optional[np.ndarray], co
             bpy.data.meshes.remove(data)
     if points is None:
         return None
-    collection = find_capture_collection(scene)
-    if collection is None:
-        collection = bpy.data.collections.new(CAPTURE_COLLECTION_NAME)
-        collection[COLLECTION_TAG] = True
-        scene.collection.children.link(collection)
+    collection = ensure_capture_collection(scene)
     mesh = bpy.data.meshes.new(POINT_CLOUD_NAME)
     mesh.vertices.add(len(points))
     mesh.attributes["position"].data.foreach_set("vector", np.ascontiguousarray(points, dtype=np.float32).ravel())
@@ -130,15 +128,17 @@ def apply_point_cloud(scene: "bpy.types.Scene", points: Optional[np.ndarray], co
     modifier = obj.modifiers.new(POINTS_MODIFIER, "NODES")
     modifier.node_group = _mesh_to_points_group()
     collection.objects.link(obj)
+    place_new(obj, scene)
     return obj
 
 
-def scale_point_cloud(obj: "bpy.types.Object", points: np.ndarray) -> None:
-    """Move the point cloud's vertices to `points` (N, 3) world (same count, same order), also in Edit Mode."""
+def scale_point_cloud(scene: "bpy.types.Scene", obj: "bpy.types.Object", points: np.ndarray) -> None:
+    """Move the point cloud's vertices to `points` (N, 3) in the engine's world (same count, same order),
+    also in Edit Mode."""
     import bmesh
 
     local = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    inverse = np.linalg.inv(np.array(obj.matrix_world, dtype=np.float64))
+    inverse = np.linalg.inv(engine_matrix(obj, scene))
     local = local @ inverse[:3, :3].T + inverse[:3, 3]
     mesh = obj.data
     if mesh.is_editmode:

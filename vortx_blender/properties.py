@@ -150,8 +150,9 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
     skipped_names: StringProperty(name="Skipped", description="The first photos left out (the import report names all of them and why)")
     capture_frame: StringProperty(
         name="Capture Frame",
-        description="JSON: the similarity between the capture's own coordinates and this Z-up world, both ways "
-                    "(engine/recon/output_frame.py, as in the engine's sidecar); a note when the capture has none",
+        description="JSON: the similarity between the capture's own coordinates and the Z-up world VoRTX works in, "
+                    "both ways, and the coordinates the scene shows (Coordinates; engine/recon/output_frame.py, as in "
+                    "the engine's sidecar); a note when the capture has none",
     )
 
     # --- reconstruction settings ---
@@ -228,14 +229,17 @@ def recon_property_names() -> list[str]:
     return [blender_name(f) for f in setting_fields(BLENDER)]
 
 
-def recon_property(f: "Field") -> object:
-    """The bpy property for ReconSettings field `f`: default, limits, tooltip and label from the field."""
+def recon_property(f: "Field", **extra: object) -> object:
+    """The bpy property for ReconSettings field `f`: default, limits, tooltip and label from the field
+    (`extra`: further property options, e.g. an operator's {"SKIP_SAVE"} or a scene property's update)."""
     meta, kind, default = f.metadata, value_type(f), field_default(f)
     options: dict[str, object] = {"name": setting_label(f), "description": meta["help"][:1].upper() + meta["help"][1:]}
     options.update(PRESENTATION.get(f.name, {}))
+    options.update(extra)
     limits = {key: meta[key] for key in ("min", "max") if meta[key] is not None}
     if meta["choices"] is not None:
-        items = [(choice.upper(), choice.capitalize(), "") for choice in meta["choices"]]
+        helps = meta["choice_help"] or ("",) * len(meta["choices"])
+        items = [(choice.upper(), choice.capitalize(), text) for choice, text in zip(meta["choices"], helps)]
         return EnumProperty(items=items, default=str(default).upper(), **options)
     if kind is bool:
         return BoolProperty(default=bool(default), **options)
@@ -253,13 +257,29 @@ def recon_property(f: "Field") -> object:
     raise TypeError(f"ReconSettings.{f.name}: no Blender property for {kind.__name__} settings; give it choices")
 
 
+def recon_field(name: str) -> "Field":
+    """ReconSettings field `name` (one offered to Blender)."""
+    return next(f for f in setting_fields(BLENDER) if f.name == name)
+
+
+def _output_frame_changed(settings: "VortxSceneSettings", _context: bpy.types.Context) -> None:
+    from .frame import frame_changed
+
+    frame_changed(settings.id_data)
+
+
+# What a scene property does when it changes, beyond holding the value.
+SCENE_UPDATES = {"frame": _output_frame_changed}  # the capture's objects move into the chosen coordinates
+
+
 def _add_recon_properties(cls: type) -> None:
     """One annotation per ReconSettings field offered to Blender, unless the class declares its own
     (the device enum, whose items depend on the GPUs PyTorch sees)."""
     annotations = cls.__dict__["__annotations__"]  # the class body declares annotations, so it has its own dict
     for f in setting_fields(BLENDER):
         if blender_name(f) not in annotations:
-            annotations[blender_name(f)] = recon_property(f)
+            update = {"update": SCENE_UPDATES[f.name]} if f.name in SCENE_UPDATES else {}
+            annotations[blender_name(f)] = recon_property(f, **update)
 
 
 _add_recon_properties(VortxSceneSettings)

@@ -23,6 +23,7 @@ from ..engine.poses.prepare import SFM_NEVER, prepare_capture
 from ..engine.recon.settings import BLENDER, ReconSettings, setting_fields, value_type
 from .cameras import posed_capture_from_scene
 from .capture import apply_prepared, scene_camera_height
+from .frame import show_frame
 from .jobs import JobFunction
 from .properties import blender_name
 from .result import Provenance
@@ -171,6 +172,7 @@ def scene_capture(scene: "bpy.types.Scene") -> Capture:
         skipped = (settings.skipped_count, settings.skipped_names)  # the cameras do not carry them
         apply_prepared(scene, prepared, settings.capture_path)
         settings.skipped_count, settings.skipped_names = skipped
+        show_frame(scene, world_change=prepared.similarity)  # the capture's own coordinates map to the new world
     return prepared.capture
 
 

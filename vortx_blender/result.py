@@ -38,6 +38,8 @@ import numpy as np
 from ..engine.colour_space import linear_to_srgb, srgb_to_linear  # noqa: F401 (re-exported)
 from ..engine.mesh_io import Mesh
 from ..engine.observation import EVIDENCE_ATTRIBUTES, observation_colours
+from .cameras import ensure_tagged_collection, find_tagged_collection
+from .frame import place_new
 
 RESULT_COLLECTION_NAME = "VoRTX Result"
 COLLECTION_TAG = "vortx_result_collection"
@@ -63,6 +65,11 @@ PROP_VERSION = "vortx_version"
 PROP_ENGINE_VERSION = "vortx_engine_version"
 PROP_CREATED = "vortx_created"
 PROP_STATS = "vortx_stats"
+# The coordinates the result is shown and exported in, and the similarities capture <-> world (JSON of
+# `engine.recon.output_frame.frame_record`; vortx_blender/frame.py keeps it current). The name is the
+# one `engine reconstruct` gives the record in a GLB's extras (capture cameras use the key for their
+# frame index: a result is never a camera).
+PROP_OUTPUT_FRAME = "vortx_frame"
 
 
 @dataclass(frozen=True)
@@ -373,19 +380,11 @@ def _solid_colour(screen: Optional[bpy.types.Screen], color_type: str) -> None:
 
 
 def find_result_collection(scene: bpy.types.Scene) -> Optional[bpy.types.Collection]:
-    for collection in scene.collection.children_recursive:
-        if collection.get(COLLECTION_TAG):
-            return collection
-    return None
+    return find_tagged_collection(scene, COLLECTION_TAG)
 
 
 def ensure_result_collection(scene: bpy.types.Scene) -> bpy.types.Collection:
-    collection = find_result_collection(scene)
-    if collection is None:
-        collection = bpy.data.collections.new(RESULT_COLLECTION_NAME)
-        collection[COLLECTION_TAG] = True
-        scene.collection.children.link(collection)
-    return collection
+    return ensure_tagged_collection(scene, COLLECTION_TAG, RESULT_COLLECTION_NAME)
 
 
 def result_objects(scene: bpy.types.Scene) -> list[bpy.types.Object]:
@@ -420,7 +419,8 @@ def insert_result(
     target_faces: int = 0,
     depsgraph: Optional[bpy.types.Depsgraph] = None,
 ) -> bpy.types.Object:
-    """Put `mesh` into the scene's result collection as a new object, decimated to about
+    """Put `mesh` (engine world) into the scene's result collection as a new object, shown in the
+    coordinates the scene shows (frame.py) and recording them (`vortx_frame`), decimated to about
     `target_faces` (0: not decimated; needs the scene's `depsgraph`); with mode REPLACE the previous
     results go. The old results are removed last, and a failure before that removes what was added,
     so an error leaves the scene as it was."""
@@ -439,6 +439,9 @@ def insert_result(
         provenance.write(obj)
         collection = ensure_result_collection(scene)
         collection.objects.link(obj)
+        place_new(obj, scene)
+        if scene.vortx.capture_frame:  # the coordinates, as the scene records them now
+            obj[PROP_OUTPUT_FRAME] = scene.vortx.capture_frame
         if target_faces > 0:
             decimate(obj, target_faces, depsgraph)
     except Exception:

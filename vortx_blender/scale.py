@@ -22,9 +22,10 @@ import numpy as np
 
 from ..engine.errors import PoseError
 from ..engine.poses import rescale_capture, scale_from_known_distance
+from ..engine.poses.align import Similarity
 from ..engine.poses.prepare import PreparedCapture
 from .cameras import PROP_POSE, is_capture_camera, move_capture_cameras, posed_capture_from_scene
-from .capture import rescale_capture_frame
+from .frame import engine_matrix, find_frame_empty, set_engine_matrix, show_frame
 from .point_cloud import find_point_cloud, scale_point_cloud
 from .result import result_objects
 
@@ -37,7 +38,7 @@ KNOWN_DISTANCE = "known distance"  # the scale source Set Scale leaves (engine.p
 @dataclass(frozen=True)
 class PickedPoint:
     label: str  # for the report: "camera VoRTX IMG_1" or "vertex 12 of VoRTX Result"
-    position: np.ndarray  # (3,) float64 world
+    position: np.ndarray  # (3,) float64 in the engine's world (whichever coordinates the scene shows)
 
 
 @dataclass(frozen=True)
@@ -74,7 +75,7 @@ def _selected_vertices(context: "bpy.types.Context") -> list[PickedPoint]:
     for obj in context.objects_in_mode_unique_data:
         if obj.type != "MESH":
             continue
-        matrix = np.array(obj.matrix_world, dtype=np.float64)
+        matrix = engine_matrix(obj, context.scene)
         bm = bmesh.from_edit_mesh(obj.data)
         for vertex in bm.verts:
             if vertex.select:
@@ -105,23 +106,27 @@ def set_scale(scene: "bpy.types.Scene", picked: list[PickedPoint], metres: float
     move_capture_cameras(scene, [f.pose for f in rescaled.capture.frames])
     cloud = find_point_cloud(scene)
     if cloud is not None and rescaled.points is not None:
-        scale_point_cloud(cloud, rescaled.points)
+        scale_point_cloud(scene, cloud, rescaled.points)
     for obj in result_objects(scene):
-        _scale_about_origin(obj, factor)
+        _scale_about_origin(scene, obj, factor)
     settings = scene.vortx
     prepared = PreparedCapture(rescaled.capture, KNOWN_DISTANCE, description)
     settings.poses_metric = True
     settings.pose_status = prepared.pose_status()
     settings.scale_source = KNOWN_DISTANCE
+    # The capture's own coordinates map to the scaled world: shown in them, nothing moves.
+    show_frame(scene, world_change=Similarity(np.eye(3), np.zeros(3), factor))
+    if find_frame_empty(scene) is not None:
+        description += ("; the scene shows the capture's own coordinates, which stay as they are: the world VoRTX "
+                        "reconstructs in is now metric")
     settings.scale_description = description
-    rescale_capture_frame(settings, factor)  # the capture's own coordinates map to the scaled world
     settings.scale_uncertainty = 0.0  # the user's measurement: taken as exact
     return ScaleChange(factor, before, float(metres), description)
 
 
-def _scale_about_origin(obj: "bpy.types.Object", factor: float) -> None:
-    """World positions x -> factor * x, keeping the object's rotation and unit scale: the mesh data
-    scales by `factor` and the object's location with it (uniform scaling commutes with rotation)."""
+def _scale_about_origin(scene: "bpy.types.Scene", obj: "bpy.types.Object", factor: float) -> None:
+    """Engine-world positions x -> factor * x, keeping the object's rotation and unit scale: the mesh
+    data scales by `factor` and the object's location with it (uniform scaling commutes with rotation)."""
     import bmesh
     from mathutils import Matrix
 
@@ -133,9 +138,6 @@ def _scale_about_origin(obj: "bpy.types.Object", factor: float) -> None:
     else:
         mesh.transform(Matrix.Scale(factor, 4))
         mesh.update()
-    if obj.parent is None:
-        obj.location = obj.location * factor
-    else:
-        world = obj.matrix_world.copy()
-        world.translation = world.translation * factor
-        obj.matrix_world = world
+    matrix = engine_matrix(obj, scene)
+    matrix[:3, 3] *= factor
+    set_engine_matrix(obj, scene, matrix)

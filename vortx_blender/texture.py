@@ -35,6 +35,7 @@ from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.mesh_io import Mesh
 from ..engine.texture.options import TextureOptions
 from .cameras import posed_capture_from_scene
+from .frame import engine_matrix
 from .jobs import JobFunction
 from .reconstruct import recon_settings_from_scene
 
@@ -51,8 +52,9 @@ MISSING_NAMED = 3  # the error names this many missing photos
 @dataclass
 class BakeRequest:
     """What the worker needs, read on the main thread. mesh: the result's evaluated triangles in
-    world metres (Z up), with its colours and confidence layer; matrix_world (4, 4) float64: the
-    object's transform at the time (the new mesh goes back into its local coordinates)."""
+    the engine's world (metres, Z up), with its colours and confidence layer; matrix_world (4, 4)
+    float64: the object's transform into that world at the time (the new mesh goes back into its local
+    coordinates)."""
 
     object_name: str
     mesh: Mesh
@@ -105,7 +107,7 @@ def request_from_scene(scene: "bpy.types.Scene", obj: Optional["bpy.types.Object
         evaluated.to_mesh_clear()
     if len(local.faces) == 0:
         raise VortxError(f"'{obj.name}' has no faces to bake a texture onto")
-    matrix = np.array(obj.matrix_world, dtype=np.float64)
+    matrix = engine_matrix(obj, scene)  # the cameras' world, whichever coordinates the scene shows (frame.py)
     if abs(np.linalg.det(matrix[:3, :3])) < 1e-12:
         raise VortxError(f"'{obj.name}' is scaled to nothing (its scale has a zero): reset its scale to bake")
     world = Mesh(vertices=transform(local.vertices, matrix), faces=local.faces, colors=local.colors,

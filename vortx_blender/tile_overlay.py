@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING, Optional, Sequence
 import bpy
 import numpy as np
 
+from .frame import find_frame_empty, place_new
+
 if TYPE_CHECKING:
     from ..engine.recon import Tile
 
@@ -190,6 +192,10 @@ def _draw() -> None:
     # POLYLINE_UNIFORM_COLOR draws wide lines on every backend (UNIFORM_COLOR's line width is
     # ignored on Metal/Vulkan).
     shader = gpu.shader.from_builtin("POLYLINE_UNIFORM_COLOR")
+    frame = find_frame_empty(scene)  # tiles are in the engine's world: shown where the scene shows it (frame.py)
+    gpu.matrix.push()
+    if frame is not None:
+        gpu.matrix.multiply_matrix(frame.matrix_world)
     gpu.state.blend_set("ALPHA")
     # No depth test: tiles enclose the mesh, and seeing the whole grid through it is the point.
     gpu.state.depth_test_set("NONE")
@@ -200,6 +206,7 @@ def _draw() -> None:
         shader.uniform_float("color", STATE_COLOURS[state])
         batch.draw(shader)
     gpu.state.blend_set("NONE")
+    gpu.matrix.pop()
 
 
 # --- baked wireframe object ----------------------------------------------------------------------------
@@ -243,6 +250,7 @@ def bake_tiles(scene: bpy.types.Scene, overlay: TileOverlay, collection: bpy.typ
         if old_mesh is not None and old_mesh.users == 0:
             bpy.data.meshes.remove(old_mesh)
     collection.objects.link(obj)
+    place_new(obj, scene)
     obj.name = mesh.name = TILES_OBJECT_NAME  # the removed object freed the name (new ones got ".001")
     return obj
 

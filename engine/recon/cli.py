@@ -24,7 +24,7 @@ from ..errors import VortxError
 from ..jobs import TqdmProgress
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import SFM_IF_UNPOSED, PreparedCapture, prepare_capture
-from .output_frame import FRAME_CAPTURE, FRAME_WORLD, FRAMES, frame_record, moved_mesh, world_to_output
+from .output_frame import FRAME_CAPTURE, FRAME_WORLD, frame_record, moved_mesh, world_to_output
 from .settings import (ReconSettings, add_setting_arguments, given_settings, refuse_ignored_settings,
                        refuse_untextured_settings, settings_from_arguments)
 
@@ -37,19 +37,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output mesh: .ply (every face, vertex colours, confidence layer), or a textured VR-ready "
                              "result: .glb (one file, texture embedded) or .obj (+ .mtl + _texture.png), decimated to "
                              "--face-budget, with the .ply beside it; a .json sidecar is written beside it")
-    add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI
+    add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI (--frame among them)
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="metres above the floor, for the scale of captures whose poses are not metric "
                              "(default %(default)s)")
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's own poses against the photos before reconstructing (for slightly-off "
                              "tracker, ARKit or SLAM poses; the report gives each frame's change)")
-    parser.add_argument("--frame", choices=FRAMES, default=FRAME_WORLD,
-                        help="coordinates of the written mesh: 'world' = Z up, floor at z = 0, metres (what Blender "
-                             "shows); 'capture' = the coordinates and units of the capture's own camera poses "
-                             "(transforms.json, COLMAP), so the mesh lies over those cameras without alignment. The "
-                             "sidecar records the similarity between the capture's frame and the output both ways "
-                             "(default %(default)s)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -90,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     from .driver import reconstruct
 
     capture = load_capture(args.capture)
-    if args.frame == FRAME_CAPTURE and not capture.posed_frames:  # before structure from motion spends minutes
+    if settings.frame == FRAME_CAPTURE and not capture.posed_frames:  # before structure from motion spends minutes
         raise VortxError(f"--frame {FRAME_CAPTURE}: {args.capture} has no camera poses of its own, so there are no capture "
                          f"coordinates to write the mesh in; structure from motion's poses are in the Z-up world "
                          f"(use --frame {FRAME_WORLD})")
@@ -105,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
                                    refine=args.refine_poses, progress=progress, check_poses=True)
         report_preparation(prepared)
         # Reconstructed in the world, written in the frame asked for (output_frame.py).
-        to_output = world_to_output(prepared, args.frame)
+        to_output = world_to_output(prepared, settings.frame)
         capture = prepared.capture
         result = reconstruct(capture, settings, progress=progress)
         # The full mesh with vertex colours and the confidence layer comes first, as a PLY (beside a
@@ -126,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
                 except VortxError as error:
                     raise VortxError(f"{error} (the untextured mesh is in {ply})") from error
                 result.stats["texture"] = texture_stats
-                frame = frame_record(prepared, args.frame)
+                frame = frame_record(prepared, settings.frame)
                 written = write_textured(out, moved_mesh(textured, to_output),
                                          extras={"vortx_settings": settings.to_dict(), "vortx_frame": frame}) + [ply]
             else:
@@ -140,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
         "capture_warnings": capture_warnings,
         "poses": prepared.summary(),
         # The mesh's frame and the similarities capture <-> world <-> output; bounds and grid below are in the world.
-        "frame": frame_record(prepared, args.frame),
+        "frame": frame_record(prepared, settings.frame),
         "output": str(out.resolve()),
         "files": [str(p.resolve()) for p in written],
         **result.stats,

@@ -21,23 +21,26 @@ import numpy as np
 from ..errors import VortxError
 from ..poses.align import Similarity
 from ..poses.prepare import PreparedCapture
+from .settings import FRAME_CAPTURE, FRAME_WORLD, FRAMES  # noqa: F401 (the frames are a setting: ReconSettings.frame)
 
-FRAME_WORLD = "world"  # Z up, floor at z = 0, metres: what Blender shows and the network reconstructs in
-FRAME_CAPTURE = "capture"  # the coordinates (and units) of the capture's own camera poses
-FRAMES = (FRAME_WORLD, FRAME_CAPTURE)
 CONVENTION = ("x_to = scale * rotation @ x_from + translation (rotation rows as listed; 'matrix' is the same "
               "4x4 homogeneous transform); the world is in metres, the capture frame in the capture's own units")
 
 MeshLike = TypeVar("MeshLike")  # engine.mesh_io.Mesh or engine.texture.textured_mesh.TexturedMesh
 
 
+# Why there is no capture frame, said the same way by every entry point.
+SFM_HAS_NO_CAPTURE_FRAME = ("structure from motion estimated the poses, in a frame of its own choosing, so there are no "
+                            "capture coordinates to map the result to: it is in the Z-up world")
+NO_POSES_NO_CAPTURE_FRAME = "no frame of the capture has a pose"
+
+
 def capture_frame_missing(prepared: PreparedCapture) -> Optional[str]:
     """Why the result has no capture frame to be written in, or None when it has one."""
     if prepared.ran_sfm:
-        return ("structure from motion estimated the poses, in a frame of its own choosing, so there are no capture "
-                "coordinates to map the result to: it is in the Z-up world")
+        return SFM_HAS_NO_CAPTURE_FRAME
     if prepared.similarity is None:
-        return "no frame of the capture has a pose"
+        return NO_POSES_NO_CAPTURE_FRAME
     return None
 
 
@@ -76,6 +79,25 @@ def similarity_record(capture_to_world: Optional[Similarity], frame: str, output
     record.update(capture_to_world=capture_to_world.to_dict(), world_to_capture=capture_to_world.inverse().to_dict(),
                   capture_to_output=capture_to_output.to_dict(), output_to_capture=capture_to_output.inverse().to_dict())
     return record
+
+
+def record_in_frame(record: dict[str, Any], frame: str, world_change: Optional[Similarity] = None) -> dict[str, Any]:
+    """A `frame_record` made again for a result in `frame`, after the world moved by `world_change`
+    (x_new = change(x_world), e.g. Blender's Set Scale) when given.
+
+    Raises VortxError for the capture frame when the record has none (its "note" says why)."""
+    if frame not in FRAMES:
+        raise VortxError(f"frame must be one of {', '.join(FRAMES)}, got {frame!r}")
+    capture_to_world = similarity_from_record(record.get("capture_to_world"))
+    if capture_to_world is None:
+        note = record.get("note") or "the capture has no coordinates of its own"
+        if frame == FRAME_CAPTURE:
+            raise VortxError(note)
+        return similarity_record(None, frame, Similarity.identity(), note)
+    if world_change is not None:
+        capture_to_world = capture_to_world.then(world_change)
+    return similarity_record(capture_to_world, frame,
+                             capture_to_world.inverse() if frame == FRAME_CAPTURE else Similarity.identity())
 
 
 def similarity_from_record(entry: Optional[dict[str, Any]]) -> Optional[Similarity]:

@@ -36,6 +36,10 @@ def level_label(voxel_size: float) -> str:
 # scripts/vortx_batch.py generate a flag for each CLI field, Blender a scene property for each
 # BLENDER field (vortx_blender/properties.py).
 METHODS = ("stereo", "vortx")  # reconstruction methods, the default first
+# The coordinates a result is written (and Blender shows the capture) in: engine/recon/output_frame.py.
+FRAME_WORLD = "world"  # Z up, floor at z = 0, metres: what the network reconstructs in (the default)
+FRAME_CAPTURE = "capture"  # the coordinates (and units) of the capture's own camera poses
+FRAMES = (FRAME_WORLD, FRAME_CAPTURE)
 
 CLI = "cli"
 BLENDER = "blender"
@@ -54,7 +58,7 @@ def setting(default: Any, help: str, expose: tuple[str, ...], *, methods: tuple[
             max: Optional[float] = None, choices: Optional[tuple[str, ...]] = None, flag: Optional[str] = None,
             blender_name: Optional[str] = None, label: Optional[str] = None, unset: Optional[int] = None,
             default_text: Optional[str] = None, metavar: Optional[tuple[str, ...]] = None,
-            textured: bool = False) -> Any:
+            textured: bool = False, choice_help: Optional[tuple[str, ...]] = None) -> Any:
     """A ReconSettings field with what every entry point needs to offer it.
 
     help: one sentence for the CLI help and the Blender tooltip. expose: (CLI, BLENDER), a subset, or
@@ -66,13 +70,16 @@ def setting(default: Any, help: str, expose: tuple[str, ...], *, methods: tuple[
     None (e.g. 0). default_text: the CLI help's default when the default is not a plain value.
     methods: the reconstruction methods (METHODS, or STEREO_EVIDENCE_WEIGHTS) that read the setting.
     textured: read only when a textured result is made (a .glb / .obj, the batch's --vr, Bake Texture).
+    choice_help: one sentence per choice (in the order of `choices`), the tooltips of Blender's enum items.
     """
+    if choice_help is not None and (choices is None or len(choice_help) != len(choices)):
+        raise ValueError("setting(choice_help=...): one sentence per choice")
     unknown = set(methods) - set(METHODS) - {STEREO_EVIDENCE_WEIGHTS}
     if unknown:
         raise ValueError(f"setting(methods=...): unknown methods {sorted(unknown)}")
     metadata = {"help": help, "expose": tuple(expose), "methods": tuple(methods), "min": min, "max": max, "choices": choices, "flag": flag,
                 "blender_name": blender_name, "label": label, "unset": unset, "default_text": default_text,
-                "metavar": metavar, "textured": textured}
+                "metavar": metavar, "textured": textured, "choice_help": choice_help}
     if isinstance(default, (list, tuple)):
         return field(default_factory=lambda: tuple(default), metadata=metadata)
     return field(default=default, metadata=metadata)
@@ -155,6 +162,17 @@ class ReconSettings:
     face_budget: int = setting(
         TextureOptions.face_budget, "a textured result is decimated to at most this many faces before the bake "
         "(0 = keep every face)", (CLI, BLENDER), min=0, max=10_000_000, label="Face Budget", textured=True)
+
+    # Where the result is written: the engine always reconstructs in the world (output_frame.py).
+    frame: str = setting(
+        FRAME_WORLD, "coordinates of the result: 'world' = Z up, floor at z = 0, metres (as the engine reconstructs); "
+        "'capture' = the coordinates and units of the capture's own camera poses (transforms.json, COLMAP), so the mesh "
+        "lies over those cameras without alignment (refused when structure from motion made the poses). The similarity "
+        "between the two is recorded both ways", (CLI, BLENDER), choices=FRAMES, blender_name="output_frame",
+        label="Coordinates", choice_help=(
+            "Z up, floor at 0, metres: the world VoRTX reconstructs in",
+            "The coordinates and units the capture's own poses are given in (a NeRF transforms.json, a COLMAP model), "
+            "so the cameras, points and mesh lie over the pipeline's own cameras; not for poses from Estimate Poses"))
 
     @property
     def texture_options(self) -> TextureOptions:

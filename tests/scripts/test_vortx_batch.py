@@ -153,6 +153,17 @@ def test_batch_without_poses_and_skip_poses_fails(tmp_path: Path) -> None:
     assert not (tmp_path / "scene.blend").exists()
 
 
+def test_batch_refuses_capture_coordinates_for_photos_without_poses(tmp_path: Path) -> None:
+    """--frame capture is Blender's Coordinates = Capture: refused at import for photos without poses
+    (structure from motion's poses have no capture coordinates), as `engine reconstruct` refuses it."""
+    photos = tmp_path / "photos"
+    write_photo_folder(photos, 3)
+    run = run_batch([str(photos), "--out", str(tmp_path / "scene.blend"), "--frame", "capture"], tmp_path)
+    _assert_one_line_error(run, "Coordinates 'Capture' is not available: no frame of the capture has a pose")
+    assert not (tmp_path / "scene.blend").exists()
+    assert json.loads((tmp_path / "scene.report.json").read_text())["failed_step"] == "import capture"
+
+
 def test_batch_fails_on_a_missing_capture(tmp_path: Path) -> None:
     run = run_batch([str(tmp_path / "nowhere"), "--out", str(tmp_path / "scene.blend")], tmp_path, timeout=60)
     _assert_one_line_error(run, "nowhere does not exist")

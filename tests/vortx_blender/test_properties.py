@@ -32,6 +32,7 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
     import bpy
 
     values = {
+        "output_frame": "CAPTURE",  # set before capture_frame: with no record yet, the choice waits for an import
         "capture_path": str(tmp_path / "room"),
         "capture_format": "scannet",
         "frame_count": 321,

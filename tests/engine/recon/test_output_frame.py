@@ -151,3 +151,25 @@ def test_frame_records_map_both_ways_and_say_when_there_is_no_capture_frame() ->
     assert "structure from motion" in none["note"]
     with pytest.raises(Exception, match="--frame capture: structure from motion estimated the poses"):
         world_to_output(sfm, "capture")
+
+
+def test_a_record_made_again_for_another_frame_or_a_moved_world() -> None:
+    """`record_in_frame` (Blender's Coordinates switch and Set Scale): the same similarities, another
+    output; after the world is scaled the capture maps to the scaled world; no capture frame, no Capture."""
+    from engine.errors import VortxError
+    from engine.recon.output_frame import record_in_frame, similarity_from_record, similarity_record
+
+    world = similarity_record(KNOWN, "world", Similarity.identity())
+    capture = record_in_frame(world, "capture")
+    assert capture["frame"] == "capture" and capture["capture_to_world"] == world["capture_to_world"]
+    np.testing.assert_allclose(similarity_from_record(capture["world_to_output"]).matrix(),
+                               KNOWN.inverse().matrix(), atol=1e-12)
+    np.testing.assert_allclose(similarity_from_record(capture["capture_to_output"]).matrix(), np.eye(4), atol=1e-12)
+    assert record_in_frame(capture, "world") == world
+    doubled = record_in_frame(capture, "capture", Similarity(np.eye(3), np.zeros(3), 2.0))
+    np.testing.assert_allclose(similarity_from_record(doubled["capture_to_world"]).matrix(),
+                               np.diag([2.0, 2.0, 2.0, 1.0]) @ KNOWN.matrix(), atol=1e-12)
+    none = similarity_record(None, "world", Similarity.identity(), "no frame of the capture has a pose")
+    assert record_in_frame(none, "world") == none
+    with pytest.raises(VortxError, match="^no frame of the capture has a pose$"):
+        record_in_frame(none, "capture")

@@ -16,7 +16,7 @@ from engine.recon import cli
 from engine.recon.settings import BLENDER, CLI, ReconSettings, cli_flag, field_default, setting_fields
 
 # Flags of each command that are not reconstruction settings.
-RECONSTRUCT_OWN = {"help", "capture", "out", "camera_height", "refine_poses", "frame", "quiet"}
+RECONSTRUCT_OWN = {"help", "capture", "out", "camera_height", "refine_poses", "quiet"}
 BATCH_OWN = {"help", "capture", "captures", "out", "export", "camera_height", "skip_poses", "refine_poses", "vr", "ray", "ray_cpus"}
 # scene.vortx properties that are not ReconSettings fields: the capture summary, pose estimation,
 # the weights chooser (-> ReconSettings.weights), the tile overlay and the Blender-side result options.
