@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": (".train.cli", "train VoRTX from a config file"),
     "eval": (".eval.cli", "evaluate a predicted mesh against ground truth (Atlas and surface metrics)"),
     "eval-depth": (".eval.stereo_depth", "stereo depth maps against the rooms' true depth (errors, normals, confidence)"),
+    "eval-scale": (".eval.scale_eval", "metric scale from the photos alone against rooms' true poses"),
     "eval-weights": (".eval.heldout", "reconstruct held-out rendered rooms with trained weights and score them"),
     "eval-texture": (".eval.texture_cli", "texture vs vertex colours from held-out photos (PSNR, SSIM)"),
 }

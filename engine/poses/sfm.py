@@ -261,6 +261,10 @@ def _pose_result(
     )
 
     notes: list[str] = []
+    low_contrast = result["database"].get("low_contrast")
+    if low_contrast:
+        notes.append(f"low-contrast photos ({low_contrast['before']:.0f} features per photo): features found again "
+                     f"at a lower contrast threshold ({low_contrast['after']:.0f} per photo)")
     size = tuple(result["source_size"])
     # The radial terms live in normalised coordinates, which downscaling does not change.
     shift_px = radial_corner_shift(K_scaled, radial, camera["width"], camera["height"]) / sx if radial else 0.0

@@ -8,6 +8,7 @@ image corner at 0 (pixel centres at +0.5).
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -120,6 +121,24 @@ def test_poses_gravity_and_scale_of_a_synthetic_room(room_photos):
     assert set(stages) == {"poses: downscale photos", "poses: SIFT features", "poses: matching", "poses: mapping"}
     assert all(done == total for done, total in stages.values())
     assert "registered 12 of 12" in result.report
+
+
+def test_dim_low_contrast_photos_get_their_features_found_again(room_photos, tmp_path):
+    """A dim, soft room (a twelfth of the contrast, slightly blurred: plain walls in poor light): at COLMAP's default
+    contrast threshold SIFT finds too few features to chain the views; the worker extracts them again
+    at a lower threshold, says so, and every photo is posed."""
+    folder, truth = room_photos
+    for path in sorted(folder.glob("*.png")):
+        image = cv2.GaussianBlur(cv2.imread(str(path)).astype(np.float32), (0, 0), 1.5)
+        cv2.imwrite(str(tmp_path / path.name), np.clip(0.08 * image + 40, 0, 255).astype(np.uint8))
+    result = estimate_poses(photo_capture(tmp_path, K), SfmOptions(intrinsics="fixed"))
+    note = next((n for n in result.notes if n.startswith("low-contrast photos")), f"no note in {result.notes}")
+    before, after = (float(w) for w in re.findall(r"\((\d+)(?: features)? per photo", note))
+    assert before < 500 < after
+    assert len(result.registered) == 12
+    assert pose_errors([f.pose for f in result.capture.frames], truth)["rotation_deg_max"] < 1.0
+    # Well-textured photos keep COLMAP's default threshold.
+    assert not any("low-contrast" in n for n in estimate_poses(photo_capture(folder, K), SfmOptions(intrinsics="fixed")).notes)
 
 
 def test_fixed_intrinsics_sequential_matching_and_downscaling(room_photos):
