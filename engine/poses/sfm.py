@@ -265,6 +265,10 @@ def _pose_result(
     if low_contrast:
         notes.append(f"low-contrast photos ({low_contrast['before']:.0f} features per photo): features found again "
                      f"at a lower contrast threshold ({low_contrast['after']:.0f} per photo)")
+    attempts = result["database"].get("mapping_attempts") or []
+    if len(attempts) > 1:
+        notes.append(f"mapping ran {len(attempts)} times (few photos posed: {', '.join(map(str, attempts))} of "
+                     f"{len(names)}); kept the run that posed the most")
     size = tuple(result["source_size"])
     # The radial terms live in normalised coordinates, which downscaling does not change.
     shift_px = radial_corner_shift(K_scaled, radial, camera["width"], camera["height"]) / sx if radial else 0.0

@@ -26,7 +26,7 @@ JOB.json (written by `sfm.py`):
 
 Result (work_dir/result.json and work_dir/points.npz): see `_write_result`. Its "database" entry says
 whether low-contrast photos had their features extracted again ("low_contrast": {"before", "after"}
-median features per photo, or null).
+median features per photo, or null) and how many photos each mapping attempt posed ("mapping_attempts").
 
 A job with `"kind": "refine"` (written by `refine.py`) refines given poses instead of estimating
 new ones: SIFT features, matches between the listed image pairs, triangulation with the given
@@ -58,6 +58,7 @@ import numpy as np
 # registered; the bundled demo room (775 per photo) never gets here.
 LOW_CONTRAST_KEYPOINTS = 500
 LOW_CONTRAST_PEAK_THRESHOLD = 0.002
+MAPPING_ATTEMPTS = 3
 
 
 def say(*parts: object) -> None:
@@ -219,12 +220,26 @@ def run_sfm(job: dict) -> None:
         options.ba_refine_focal_length = False
         options.ba_refine_principal_point = False
         options.ba_refine_extra_params = False
-    models = pycolmap.incremental_mapping(db_path, image_dir, sparse_dir, options=options)
+    # The mapper is randomised (RANSAC): on weakly matched photos one run poses 3 of 40, the next 11.
+    # While fewer than half are posed it runs again, up to MAPPING_ATTEMPTS times; the run that posed
+    # the most photos is kept.
+    attempts: list[int] = []
+    models: dict = {}
+    while len(attempts) < MAPPING_ATTEMPTS:
+        attempt_dir = sparse_dir / f"attempt_{len(attempts)}"
+        attempt_dir.mkdir(parents=True, exist_ok=True)
+        found = pycolmap.incremental_mapping(db_path, image_dir, attempt_dir, options=options)
+        attempts.append(max((r.num_reg_images() for r in found.values()), default=0))
+        if attempts[-1] >= max((r.num_reg_images() for r in models.values()), default=0) and found:
+            models = found
+        if max(attempts) * 2 >= len(names):
+            break
     timings["map"] = time.perf_counter() - start
-    registered = max((r.num_reg_images() for r in models.values()), default=0)
+    registered = max(attempts)
     say("progress", "map", registered, len(names))
 
     stats["low_contrast"] = low_contrast
+    stats["mapping_attempts"] = attempts
     _write_result(work, models, sizes, sx, sy, stats, timings)
 
 

@@ -141,6 +141,21 @@ def test_dim_low_contrast_photos_get_their_features_found_again(room_photos, tmp
     assert not any("low-contrast" in n for n in estimate_poses(photo_capture(folder, K), SfmOptions(intrinsics="fixed")).notes)
 
 
+def test_mapping_runs_again_while_fewer_than_half_the_photos_are_posed(tmp_path):
+    """Three rooms with nothing in common, 5 photos each: no run can pose more than a third, so the
+    mapper runs three times (it is randomised: on weakly matched photos another run poses more), says
+    so, and keeps the best run."""
+    poses = true_poses()[:5]
+    for room in range(3):
+        faces = room_faces(np.random.default_rng(100 + room))
+        for k, pose in enumerate(poses):
+            cv2.imwrite(str(tmp_path / f"{room}{k:02d}.png"), render(pose, faces))
+    result = estimate_poses(photo_capture(tmp_path, K), SfmOptions(intrinsics="fixed"))
+    assert len(result.registered) == 5 and result.model_sizes[0] == 5
+    note = next((n for n in result.notes if n.startswith("mapping ran")), f"no note in {result.notes}")
+    assert note.startswith("mapping ran 3 times (few photos posed: 5, 5, 5 of 15)"), note
+
+
 def test_fixed_intrinsics_sequential_matching_and_downscaling(room_photos):
     """A calibrated capture keeps its K exactly; poses come from 3/4-size photos."""
     folder, truth = room_photos
