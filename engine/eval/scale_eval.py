@@ -11,8 +11,11 @@ is from metres:
 - `scale_error`: estimated length / true length - 1 (+0.10: the reconstruction comes out 10 % too large);
 - `sigma`: the estimate's own 1-sigma (relative), to judge whether the error is within what it claims;
 - `registered`: photos that structure from motion posed, of all photos;
-- `centre_rms_m`: RMS distance of the fitted camera centres from the true ones (metres): a large value
-  means the poses themselves are wrong, not just their scale.
+- `centre_rms_m`: RMS distance of the camera centres from the true ones after a least-squares
+  similarity (metres): a large value means the poses themselves are wrong, not just their scale.
+
+The error is the median over camera pairs of estimated / true distance, so a few misplaced photos
+do not decide it (`fit_scale`).
 """
 
 from __future__ import annotations
@@ -33,6 +36,7 @@ from ..poses.align import umeyama
 from ..poses.prepare import SFM_ALWAYS, prepare_capture
 
 MIN_MATCHED = 3  # camera centres a similarity needs
+MIN_PAIR_DISTANCE_M = 0.5  # camera pairs closer than this say little about the scale
 
 
 @dataclass(frozen=True)
@@ -77,15 +81,27 @@ def photos_only(room: Path) -> Capture:
 
 
 def fit_scale(estimated: dict[str, np.ndarray], true: dict[str, np.ndarray]) -> tuple[float, float, int]:
-    """(estimated / true length ratio, RMS of the fitted centres in metres, matched count)."""
+    """(estimated / true length ratio, RMS of the fitted centres in metres, matched count).
+
+    The ratio is the median over camera pairs at least MIN_PAIR_DISTANCE_M apart of their estimated
+    over their true distance: the scale of the cameras SfM placed right, even when it misplaced a few
+    (a repeated wall pattern can register a handful of photos on the wrong wall; a least-squares
+    similarity would let them drag the scale). The RMS is that of a least-squares similarity: it
+    shows whether the poses themselves are right."""
     names = sorted(set(estimated) & set(true))
     if len(names) < MIN_MATCHED:
         return float("nan"), float("nan"), len(names)
     source = np.stack([estimated[n] for n in names])
     target = np.stack([true[n] for n in names])
+    i, j = np.triu_indices(len(names), k=1)
+    true_distance = np.linalg.norm(target[i] - target[j], axis=1)
+    far = true_distance >= MIN_PAIR_DISTANCE_M
+    if not far.any():
+        return float("nan"), float("nan"), len(names)
+    ratio = float(np.median(np.linalg.norm(source[i] - source[j], axis=1)[far] / true_distance[far]))
     similarity = umeyama(source, target, with_scale=True)  # target = s R source + t
     residual = similarity.apply_points(source) - target
-    return 1.0 / similarity.scale, float(np.sqrt((residual ** 2).sum(1).mean())), len(names)
+    return ratio, float(np.sqrt((residual ** 2).sum(1).mean())), len(names)
 
 
 def evaluate_room(room: Path, camera_height: Optional[float] = None) -> ScaleResult:

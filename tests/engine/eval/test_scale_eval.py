@@ -43,3 +43,14 @@ def test_true_poses_come_from_pose_true_when_the_given_ones_were_perturbed(tmp_p
     assert np.allclose(true_camera_centres(tmp_path)["000000"], [1.0, 2.0, 1.5])
     with pytest.raises(VortxError, match="no true poses"):
         true_camera_centres(tmp_path / "nowhere")
+
+
+def test_a_few_misplaced_photos_do_not_decide_the_scale_but_show_in_the_rms():
+    rng = np.random.default_rng(1)
+    true = {f"{i:06d}": rng.uniform([0, 0, 1.2], [4, 5, 1.7]) for i in range(30)}
+    estimated = {name: 0.9 * c for name, c in true.items()}
+    for name in list(true)[:4]:  # registered on the wrong wall, 3 m away
+        estimated[name] = estimated[name] + [3.0, 0.0, 0.0]
+    ratio, rms, _ = fit_scale(estimated, true)
+    assert ratio == pytest.approx(0.9, abs=0.02)
+    assert rms > 0.3
