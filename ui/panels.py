@@ -28,16 +28,22 @@ VR_PRESET_TEXT = (f"VR preset: {TextureOptions.face_budget // 1000}k faces, {Tex
                   f"({MOBILE_TEXTURE_SIZE} px for mobile headsets)")
 
 
+WRAP_CHARS = 44  # characters per line of wrapped panel text (the sidebar's default width)
+VALUE_CHARS = 26  # what fits beside a label (the row's right 60 %) before Blender cuts it with "..."
+
+
 def _value_row(layout: Any, label: str, value: str) -> None:
     # Summary values are written by the operators; showing them as labels (not editable fields)
     # keeps users from typing a frame count that no longer matches the cameras.
+    if len(value) > VALUE_CHARS:  # e.g. "36 of 36 posed by SfM, scaled by the ...": whole, under its label
+        layout.label(text=f"{label}:")
+        for line in textwrap.wrap(value, WRAP_CHARS):
+            layout.label(text=line, icon="BLANK1")
+        return
     row = layout.row()
     split = row.split(factor=0.4)
     split.label(text=label)
     split.label(text=value)
-
-
-WRAP_CHARS = 44  # characters per line of wrapped panel text (the sidebar's default width)
 
 
 def scale_text(settings: Any) -> str:

@@ -251,3 +251,23 @@ def test_result_panel_offers_the_bake_with_the_vr_preset_and_its_progress(blende
     finally:
         release.set()
         job.wait()
+
+
+def test_long_pose_and_scale_values_are_shown_whole_not_cut(blender, empty_scene) -> None:
+    """Beside a label the sidebar has room for about 26 characters and cuts the rest with "...": a
+    longer value goes whole on its own lines under the label."""
+    import bpy
+
+    settings = empty_scene.vortx
+    settings.capture_path = "/captures/kitchen/"
+    settings.frame_count, settings.posed_frame_count, settings.poses_metric = 36, 36, True
+    settings.pose_status = "36 of 36 posed by SfM, scaled by the camera height over the floor, +-12 %"
+    settings.scale_source, settings.scale_uncertainty = "camera height over the floor", 0.12
+    texts = [c[1].get("text") or "" for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
+    assert "Poses:" in texts and "Scale:" in texts
+    assert " ".join(texts[texts.index("Poses:") + 1:texts.index("Scale:")]) == settings.pose_status
+    assert "metres (camera height over the floor, +-12 %)" in " ".join(texts)
+    assert max(len(t) for t in texts) <= 44
+    settings.pose_status = "All 60 posed (transforms)"  # short: beside its label, as before
+    texts = [c[1].get("text") or "" for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
+    assert "Poses" in texts and "All 60 posed (transforms)" in texts
