@@ -28,16 +28,32 @@ VR_PRESET_TEXT = (f"VR preset: {TextureOptions.face_budget // 1000}k faces, {Tex
                   f"({MOBILE_TEXTURE_SIZE} px for mobile headsets)")
 
 
-WRAP_CHARS = 44  # characters per line of wrapped panel text (the sidebar's default width)
-VALUE_CHARS = 26  # what fits beside a label (the row's right 60 %) before Blender cuts it with "..."
+# Blender cuts a label that does not fit with "..." in its middle, so long text is wrapped to the
+# sidebar's width. Measured in the real window (Blender 4.3, UI scale 1, sidebar 291 px): 36-38
+# characters of panel text fit beside an icon inside a box (about 6 px a character and 70 px of tab
+# strip, box and icon margins).
+CHAR_PX = 6.0
+MARGIN_PX = 70
+WRAP_CHARS = 36  # the default sidebar's width, and what a draw without a region (tests, scripts) uses
+MIN_WRAP_CHARS = 16
 
 
-def _value_row(layout: Any, label: str, value: str) -> None:
+def wrap_chars(context: Any) -> int:
+    """Characters of panel text that fit on one line of the sidebar `context` draws into."""
+    region = getattr(context, "region", None)
+    width = getattr(region, "width", 0) or 0
+    if width <= MARGIN_PX:  # no region (headless) or collapsed
+        return WRAP_CHARS
+    scale = bpy.context.preferences.system.ui_scale or 1.0  # the resolution scale times the display's DPI
+    return max(MIN_WRAP_CHARS, int((width / scale - MARGIN_PX) / CHAR_PX))
+
+
+def _value_row(layout: Any, label: str, value: str, chars: int = WRAP_CHARS) -> None:
     # Summary values are written by the operators; showing them as labels (not editable fields)
     # keeps users from typing a frame count that no longer matches the cameras.
-    if len(value) > VALUE_CHARS:  # e.g. "36 of 36 posed by SfM, scaled by the ...": whole, under its label
+    if len(value) > int(0.6 * chars):  # e.g. "36 of 36 posed by SfM, scaled by the ...": whole, under its label
         layout.label(text=f"{label}:")
-        for line in textwrap.wrap(value, WRAP_CHARS):
+        for line in textwrap.wrap(value, chars):
             layout.label(text=line, icon="BLANK1")
         return
     row = layout.row()
@@ -55,13 +71,13 @@ def scale_text(settings: Any) -> str:
     return f"{units} ({settings.scale_source}{sigma})"
 
 
-def _wrapped(layout: Any, text: str, icon: str) -> None:
-    lines = textwrap.wrap(text, WRAP_CHARS) or [""]
+def _wrapped(layout: Any, text: str, icon: str, chars: int = WRAP_CHARS) -> None:
+    lines = textwrap.wrap(text, chars) or [""]
     for index, line in enumerate(lines):
         layout.label(text=line, icon=icon if index == 0 else "BLANK1")
 
 
-def draw_capture(layout: Any, settings: Any, job: Optional[Job]) -> None:
+def draw_capture(layout: Any, settings: Any, job: Optional[Job], chars: int = WRAP_CHARS) -> None:
     layout.operator("vortx.import_capture", icon="FILE_FOLDER")
     # The coordinates the capture is shown (and the result exported) in: an import option that also
     # moves an imported capture at once. Greyed out, with the reason, when the capture has none of its own.
@@ -71,26 +87,26 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job]) -> None:
     note = capture_frame_note(settings)
     if note is not None:
         row.enabled = False
-        _wrapped(layout, f"No capture coordinates: {note}", "INFO")
+        _wrapped(layout, f"No capture coordinates: {note}", "INFO", chars)
     if settings.capture_path:
         box = layout.box()
         col = box.column(align=True)
         col.label(text=bpy.path.basename(settings.capture_path.rstrip("/\\")) or settings.capture_path, icon="IMAGE_DATA")
-        _value_row(col, "Format", settings.capture_format)
-        _value_row(col, "Frames", str(settings.frame_count))
-        _value_row(col, "Resolution", f"{settings.resolution_x} x {settings.resolution_y}")
-        _value_row(col, "Poses", settings.pose_status)
+        _value_row(col, "Format", settings.capture_format, chars)
+        _value_row(col, "Frames", str(settings.frame_count), chars)
+        _value_row(col, "Resolution", f"{settings.resolution_x} x {settings.resolution_y}", chars)
+        _value_row(col, "Poses", settings.pose_status, chars)
         if settings.posed_frame_count:
-            _value_row(col, "Scale", scale_text(settings))
+            _value_row(col, "Scale", scale_text(settings), chars)
             if settings.scale_description:
                 # The description is long (floor plane found or not, the numbers): the tooltip-free
                 # panel shows it wrapped on its own lines, with a warning icon when it is a guess.
                 icon = "ERROR" if settings.scale_source in ("unknown", "") or "no floor" in settings.scale_description else "INFO"
-                _wrapped(col, settings.scale_description, icon)
+                _wrapped(col, settings.scale_description, icon, chars)
             if settings.pose_check:  # the given poses look off against the photos: Refine Poses below
-                _wrapped(col, settings.pose_check, "ERROR")
+                _wrapped(col, settings.pose_check, "ERROR", chars)
         if settings.skipped_count:
-            _wrapped(col, f"{settings.skipped_count} photo(s) skipped: {settings.skipped_names}", "ERROR")
+            _wrapped(col, f"{settings.skipped_count} photo(s) skipped: {settings.skipped_names}", "ERROR", chars)
     else:
         layout.label(text="No capture imported", icon="INFO")
     row = layout.row(align=True)
@@ -144,7 +160,8 @@ def draw_tiles(layout: Any, settings: Any) -> None:
     row.operator("vortx.bake_tiles", icon="MOD_WIREFRAME")
 
 
-def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = None, job: Optional[Job] = None) -> None:
+def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = None, job: Optional[Job] = None,
+                         chars: int = WRAP_CHARS) -> None:
     """`result`: the result object the observation toggle and Bake Texture act on (results.shown_result),
     or None; `job`: the running job (its progress is shown here when it is a bake)."""
     _settings_layout(layout)
@@ -165,7 +182,7 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
     col = layout.column(align=True)
     col.prop(settings, "texture_size")
     col.prop(settings, "face_budget")
-    _wrapped(layout, VR_PRESET_TEXT, "INFO")
+    _wrapped(layout, VR_PRESET_TEXT, "INFO", chars)
     layout.operator("vortx.bake_texture", icon="TEXTURE")
     if job is not None and job.title in RESULT_JOBS:
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
@@ -204,7 +221,7 @@ class VORTX_PT_capture(bpy.types.Panel):
     bl_category = CATEGORY
 
     def draw(self, context: bpy.types.Context) -> None:
-        draw_capture(self.layout, context.scene.vortx, jobs.active_job())
+        draw_capture(self.layout, context.scene.vortx, jobs.active_job(), wrap_chars(context))
 
 
 class VORTX_PT_pose_settings(bpy.types.Panel):
@@ -270,7 +287,7 @@ class VORTX_PT_result(_ReconstructionChild):
 
     def draw(self, context: bpy.types.Context) -> None:
         draw_result_settings(self.layout, context.scene.vortx, results.shown_result(context.scene, context.active_object),
-                             jobs.active_job())
+                             jobs.active_job(), wrap_chars(context))
 
 
 class VORTX_PT_advanced(_ReconstructionChild):

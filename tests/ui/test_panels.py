@@ -254,10 +254,12 @@ def test_result_panel_offers_the_bake_with_the_vr_preset_and_its_progress(blende
 
 
 def test_long_pose_and_scale_values_are_shown_whole_not_cut(blender, empty_scene) -> None:
-    """Beside a label the sidebar has room for about 26 characters and cuts the rest with "...": a
-    longer value goes whole on its own lines under the label."""
+    """Blender cuts a label that does not fit with "..." in its middle: beside its label a value has
+    about 60 % of the sidebar; a longer one goes whole on its own lines under the label, and wrapped
+    text follows the sidebar's width."""
     import bpy
 
+    panels = blender.ui.panels
     settings = empty_scene.vortx
     settings.capture_path = "/captures/kitchen/"
     settings.frame_count, settings.posed_frame_count, settings.poses_metric = 36, 36, True
@@ -267,7 +269,14 @@ def test_long_pose_and_scale_values_are_shown_whole_not_cut(blender, empty_scene
     assert "Poses:" in texts and "Scale:" in texts
     assert " ".join(texts[texts.index("Poses:") + 1:texts.index("Scale:")]) == settings.pose_status
     assert "metres (camera height over the floor, +-12 %)" in " ".join(texts)
-    assert max(len(t) for t in texts) <= 44
-    settings.pose_status = "All 60 posed (transforms)"  # short: beside its label, as before
+    assert max(len(t) for t in texts) <= panels.WRAP_CHARS
+    settings.pose_status = "All 6 posed (colmap)"  # short: beside its label, as before
     texts = [c[1].get("text") or "" for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
-    assert "Poses" in texts and "All 60 posed (transforms)" in texts
+    assert "Poses" in texts and "All 6 posed (colmap)" in texts
+    # A wider sidebar holds more per line; a narrow one fewer, never below the minimum.
+    wide = SimpleNamespace(region=SimpleNamespace(width=600))
+    narrow = SimpleNamespace(region=SimpleNamespace(width=80))
+    scale = bpy.context.preferences.system.ui_scale or 1.0  # 0 without a window
+    assert panels.wrap_chars(wide) == int((600 / scale - panels.MARGIN_PX) / panels.CHAR_PX) > panels.WRAP_CHARS
+    assert panels.wrap_chars(narrow) == panels.MIN_WRAP_CHARS
+    assert panels.wrap_chars(SimpleNamespace(region=None)) == panels.WRAP_CHARS
