@@ -11,6 +11,8 @@ import json
 from dataclasses import dataclass
 from typing import Any, Optional
 
+from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
+
 # Level 0 is the coarsest. The names are the official checkpoint's ModuleDict keys.
 LEVEL_NAMES: tuple[str, str, str] = ("coarse", "medium", "fine")
 # Each level's voxel size is the fine voxel size times this factor (16 / 8 / 4 cm by default).
@@ -28,15 +30,17 @@ SPARSE_NORM_STATISTICS = ("running", "scene")
 class StereoEvidenceConfig:
     """Plane-sweep stereo depth as input (engine/model/stereo_evidence.py).
 
-    truncation_voxels: truncation of the per-view signed distance and of the fused TSDF, in voxels of
-                       each level (3: FineRecon's and the ground truth's).
+    truncation_voxels: truncation of the per-view signed distance and of the coarse and medium levels'
+                       fused TSDF, in voxels of each level (default: the classical stereo method's band,
+                       CLASSICAL_TRUNCATION_VOXELS = 4; FineRecon and the ground truth use 3). The fine
+                       level always starts from the classical method's own fused TSDF.
     view_tokens:       join [signed distance, confidence, valid] with the appearance features in the
                        view transformer's tokens.
     Always on with evidence: the fused TSDF as an input channel of every level's 3D CNN, and every
     level's head a residual on it (zero-initialised last layer: untrained = classical fusion).
     """
 
-    truncation_voxels: float = 3.0
+    truncation_voxels: float = CLASSICAL_TRUNCATION_VOXELS
     view_tokens: bool = True
 
     def __post_init__(self) -> None:

@@ -15,10 +15,19 @@ Two inputs, both computed from the plane-sweep depth maps (engine/stereo), never
   ground-truth sign convention (negative in front of a surface, -1 free space, +1 never observed).
 
 The truncation is `truncation_voxels` voxels of the level the voxel belongs to (16 / 8 / 4 cm).
+
+The network starts exactly at the classical stereo method (its heads' last layers are zero): the fine
+level outputs the classical fused TSDF (`FineFusion`, fused with the classical band,
+engine/stereo/fused_tsdf.py CLASSICAL_TRUNCATION_VOXELS, from the same depth maps), and the coarse and
+medium levels keep every voxel whose block holds a fine voxel of the classical surface. Training then
+learns corrections: completion where no map saw the surface, removal of what the maps got wrong.
+
 A depth pixel (0, 0) covers [0, 1)^2 (the engine's K convention): a projection lands in pixel floor(u).
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -85,14 +94,90 @@ def fused_tsdf(points: torch.Tensor, evidence: StereoEvidence, trunc: float) -> 
     return torch.cat(out)
 
 
-def prior_logits(level_is_fine: bool, stereo_tsdf: torch.Tensor) -> torch.Tensor:
-    """The logits an untrained evidence model starts from (its heads' last layers are zero): at the
-    fine level the logit whose TSDF (1.05 tanh) is the fused TSDF, and for unobserved voxels (+1) the
-    largest one (TSDF 1.049 >= UNOBSERVED_TSDF: no surface there, see `observed_by_prediction`);
-    above it an occupancy logit that keeps every voxel near an observed surface (|tsdf| < 1) and
-    prunes free and unobserved space."""
-    if level_is_fine:
-        logits = torch.atanh((stereo_tsdf / TSDF_SCALE).clamp(-0.999, 0.999))
-        return torch.where(stereo_tsdf >= 1, torch.full_like(logits, MAX_FINE_LOGIT), logits)
-    return OCCUPANCY_PRIOR_GAIN * (NEAR_SURFACE - stereo_tsdf.abs())
+@dataclass
+class FineFusion:
+    """The classical stereo method's fused TSDF on a dense grid of fine voxels: where an evidence network
+    starts (its heads' last layers are zero, so it outputs `LevelEvidence.start` until trained).
 
+    tsdf:   (X, Y, Z) float32, ground-truth convention (+1 where no depth map reached the voxel).
+    offset: the fine-voxel index, in the frame of the network's voxel coordinates, of tsdf[0, 0, 0].
+    Outside the grid every voxel counts as unobserved (+1): the classical method meshes nothing there.
+    """
+
+    tsdf: torch.Tensor
+    offset: tuple[int, int, int]
+    _block_distance: dict = field(default_factory=dict, repr=False)
+
+    def tsdf_at(self, coords: torch.Tensor) -> torch.Tensor:
+        """(N,) fused TSDF of fine voxels (N, 3) (+1 outside the grid)."""
+        return _gather(self.tsdf, coords, 1.0, self.offset)
+
+    def block_distance(self, scale: int, coords: torch.Tensor) -> torch.Tensor:
+        """(N,) for voxels (N, 3) of a level `scale` fine voxels wide: the smallest |fused TSDF| over the
+        fine voxels of the block grown by one fine voxel on every side (1 when none is observed).
+
+        The margin matters: a marching-cubes cell with a zero crossing has a corner with 0 < tsdf < 1, and
+        its other corners, one fine voxel away, may lie in the neighbouring block; with the margin every
+        block holding a corner of a classical surface cell is kept, so pruning loses none of it (a single
+        corner sample per coarse voxel lost ~14 % of the surface, MODEL.md)."""
+        if scale not in self._block_distance:
+            self._block_distance[scale] = _block_min_abs(self.tsdf, self.offset, scale)
+        pooled, first = self._block_distance[scale]
+        return _gather(pooled, coords, 1.0, first)
+
+
+def _gather(grid: torch.Tensor, index: torch.Tensor, fill: float, offset: tuple[int, int, int] = (0, 0, 0)) -> torch.Tensor:
+    """grid (X, Y, Z) values at integer indices (N, 3), `offset` being the index of grid[0, 0, 0]; `fill`
+    outside the grid."""
+    local = index.to(grid.device, torch.int64) - torch.as_tensor(offset, dtype=torch.int64, device=grid.device)
+    shape = torch.as_tensor(grid.shape, device=grid.device)
+    inside = ((local >= 0) & (local < shape)).all(dim=1)
+    local = torch.where(inside[:, None], local, torch.zeros_like(local))
+    flat = (local[:, 0] * grid.shape[1] + local[:, 1]) * grid.shape[2] + local[:, 2]
+    values = grid.reshape(-1)[flat]
+    return torch.where(inside, values, torch.full_like(values, fill))
+
+
+def _block_min_abs(tsdf: torch.Tensor, offset: tuple[int, int, int], scale: int) -> tuple[torch.Tensor, tuple[int, int, int]]:
+    """Min |tsdf| over each level block [scale * i - 1, scale * i + scale] (fine indices, inclusive) ->
+    (grid of blocks, level index of its first block). The grid is padded with 1 (unobserved) so its first
+    fine voxel sits on a block boundary and every block that touches it gets a value."""
+    front = [o % scale for o in offset]  # fine voxels of padding before the grid, to a block boundary
+    first = tuple((o - f) // scale for o, f in zip(offset, front))
+    back = [scale + 1 for _ in offset]
+    distance = tsdf.abs().to(torch.float32)
+    padded = torch.nn.functional.pad(distance, (front[2], back[2], front[1], back[1], front[0], back[0]), value=1.0)
+    # Min-pooling with windows of scale + 2 starting one voxel before each block; max_pool3d pads with -inf.
+    pooled = -torch.nn.functional.max_pool3d(-padded[None, None], kernel_size=scale + 2, stride=scale, padding=1)[0, 0]
+    return pooled, first
+
+
+@dataclass
+class LevelEvidence:
+    """Stereo evidence of one level's N voxels, as `VortxNet.level_step` takes it.
+
+    tsdf:  (N,) fused stereo TSDF at each voxel: the 3D CNN's extra input channel (the level's own
+           truncation above the fine level; at the fine level the classical method's own value).
+    start: (N,) the logits an untrained network outputs (`prior_logits`): classical fusion's answer.
+    """
+
+    tsdf: torch.Tensor
+    start: torch.Tensor
+
+    def __len__(self) -> int:
+        return self.tsdf.shape[0]
+
+
+def prior_logits(level_is_fine: bool, value: torch.Tensor) -> torch.Tensor:
+    """The logits an untrained evidence model starts from (its heads' last layers are zero).
+
+    Fine level, value = the classical fused TSDF of the voxel: the logit whose TSDF (1.05 tanh) is that
+    TSDF, and for unobserved voxels (+1) the largest one (TSDF 1.049 >= UNOBSERVED_TSDF: no surface
+    there, see `observed_by_prediction`).
+    Coarse and medium, value = the block's `FineFusion.block_distance`: an occupancy logit that keeps
+    every voxel holding a fine voxel near an observed surface (|tsdf| < 1) and prunes the rest, so the
+    fine level sees every voxel the classical surface needs."""
+    if level_is_fine:
+        logits = torch.atanh((value / TSDF_SCALE).clamp(-0.999, 0.999))
+        return torch.where(value >= 1, torch.full_like(logits, MAX_FINE_LOGIT), logits)
+    return OCCUPANCY_PRIOR_GAIN * (NEAR_SURFACE - value)

@@ -7,8 +7,9 @@ Per level l (0 = coarse 16 cm, 1 = medium 8 cm, 2 = fine 4 cm):
   keep logit > 0, copy to the 8 children        --prune_and_upsample-->  next level's input
 The fine logits are TSDF logits (TSDF = 1.05 tanh). With stereo evidence (`config.stereo_evidence`,
 engine/model/stereo_evidence.py) `fuse` also takes the views' stereo depth maps (token evidence) and
-`level_step` the fused stereo TSDF of the voxels: an extra 3D CNN input channel, and the head's
-output is added to a prior computed from it (last layer zero at init: untrained = classical fusion).
+`level_step` the voxels' `LevelEvidence`: the fused stereo TSDF as an extra 3D CNN input channel, and
+the logits of classical fusion (`FineFusion`) that the head's output is added to (last layer zero at
+init: untrained = the classical stereo method's surface).
 The inference driver (`engine.recon`) calls the
 steps itself so it can fuse per tile and run each level's 3D CNN over the whole scene; `forward`
 composes the same steps for a training batch of crops.
@@ -30,11 +31,12 @@ from .backbone_efficientnet import EfficientNetLite0Pyramid
 from .backbone_mnasnet import MnasNetPyramid
 from .backprojection import Projection, project_to_feature_maps, sample_features
 from .coarse_to_fine import Upsampler, subsample_per_sample
-from .config import LEVEL_IMAGE_STRIDES, LEVEL_NAMES, VortxConfig
+from .config import LEVEL_IMAGE_STRIDES, LEVEL_NAMES, LEVEL_SCALES, VortxConfig
 from .fpn import FeaturePyramid
 from .view_fusion import AverageFusion, TransformerFusion
 from .outputs import FusionOutput, LevelOutput, LevelPrediction, StereoEvidence, VortxBatch
-from .stereo_evidence import EVIDENCE_CHANNELS, fused_tsdf, prior_logits, view_evidence
+from .stereo_evidence import EVIDENCE_CHANNELS, FineFusion, LevelEvidence, fused_tsdf, prior_logits, view_evidence
+from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
 from .unet3d import SparseUNet
 from .view_encoding import ViewDirectionEncoder
 
@@ -97,7 +99,7 @@ class VortxNet(nn.Module):
 
     @property
     def uses_stereo(self) -> bool:
-        """True when the network takes stereo evidence (fuse's `evidence`, level_step's `stereo_tsdf`)."""
+        """True when the network takes stereo evidence (fuse's `evidence`, level_step's `evidence`)."""
         return self.config.stereo_evidence is not None
 
     def evidence_truncation(self, level: int) -> float:
@@ -106,9 +108,24 @@ class VortxNet(nn.Module):
             raise ValueError("this network takes no stereo evidence")
         return self.config.stereo_evidence.truncation_voxels * self.config.level_voxel_size(level)
 
-    def stereo_tsdf(self, level: int, points_world: torch.Tensor, evidence: StereoEvidence) -> torch.Tensor:
-        """(M,) TSDF fused from all of the scene's stereo maps at points (M, 3), the level's truncation."""
-        return fused_tsdf(points_world, evidence, self.evidence_truncation(level))
+    def crop_fine_fusion(self, origin: torch.Tensor, shape: tuple[int, int, int], evidence: StereoEvidence) -> FineFusion:
+        """The classical fused TSDF of a crop's fine voxels (X, Y, Z) = `shape` at origin (3,) + index *
+        voxel_size, from all of its stereo maps (inference fuses the whole scene's grid the same way)."""
+        axes = [torch.arange(n, device=origin.device) for n in shape]
+        index = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
+        points = origin.to(torch.float64) + index.to(torch.float64) * self.config.voxel_size
+        tsdf = fused_tsdf(points, evidence, CLASSICAL_TRUNCATION_VOXELS * self.config.voxel_size)
+        return FineFusion(tsdf.reshape(*shape), (0, 0, 0))
+
+    def level_evidence(self, level: int, coords: torch.Tensor, points: torch.Tensor, evidence: StereoEvidence,
+                       fine: FineFusion) -> LevelEvidence:
+        """Stereo evidence of a level's voxels: coords (N, 3) in level units (the frame of `fine`), points
+        (N, 3) their world positions, `evidence` the scene's (or crop's) maps."""
+        if level == len(LEVEL_NAMES) - 1:
+            tsdf = fine.tsdf_at(coords)
+            return LevelEvidence(tsdf, prior_logits(True, tsdf))
+        tsdf = fused_tsdf(points, evidence, self.evidence_truncation(level)).to(fine.tsdf.device)
+        return LevelEvidence(tsdf, prior_logits(False, fine.block_distance(LEVEL_SCALES[level], coords)))
 
     def set_use_proj_occ(self, use_proj_occ: bool) -> None:
         """Switch view pooling: softmax-with-null over projective occupancy (True) or masked mean."""
@@ -212,23 +229,22 @@ class VortxNet(nn.Module):
 
     def level_step(
         self, level: int, coords: torch.Tensor, fused: torch.Tensor, previous: LevelOutput | None,
-        stereo_tsdf: torch.Tensor | None = None,
+        evidence: LevelEvidence | None = None,
     ) -> LevelOutput:
         """3D CNN + head at one level.
 
         coords (N, 4) [batch, x, y, z] level units; fused (N, C_l) from fuse(); previous: the
         upsampled output of the level above, row-aligned with coords (None at level 0);
-        stereo_tsdf (N,) the voxels' fused stereo TSDF (`stereo_tsdf()`), required exactly when the
-        config has stereo evidence.
+        evidence: the voxels' stereo evidence (`level_evidence()`), required exactly when the config
+        has stereo evidence.
         """
         name = LEVEL_NAMES[level]
-        if self.uses_stereo != (stereo_tsdf is not None):
-            raise ValueError("stereo_tsdf must be given exactly when the weights take stereo evidence")
-        if stereo_tsdf is not None:
-            stereo_tsdf = stereo_tsdf.reshape(-1).to(fused.dtype)
-            if len(stereo_tsdf) != len(coords):
-                raise ValueError(f"stereo_tsdf has {len(stereo_tsdf)} rows for {len(coords)} voxels")
-            fused = torch.cat([fused, stereo_tsdf[:, None]], dim=1)
+        if self.uses_stereo != (evidence is not None):
+            raise ValueError("stereo evidence must be given exactly when the weights take stereo evidence")
+        if evidence is not None:
+            if len(evidence) != len(coords):
+                raise ValueError(f"stereo evidence has {len(evidence)} rows for {len(coords)} voxels")
+            fused = torch.cat([fused, evidence.tsdf.reshape(-1, 1).to(fused)], dim=1)
         if level == 0:
             x = fused
         else:
@@ -243,8 +259,8 @@ class VortxNet(nn.Module):
             return LevelOutput(coords, x.new_zeros(0, width), x.new_zeros(0))
         voxels = self.cnns3d[name](SparseVoxels(coords, x, stride=1))
         logits = self.output_layers[name](voxels).feats[:, 0]
-        if stereo_tsdf is not None:
-            logits = logits + prior_logits(level == len(LEVEL_NAMES) - 1, stereo_tsdf).to(logits.dtype)
+        if evidence is not None:
+            logits = logits + evidence.start.to(logits)
         return LevelOutput(coords, voxels.feats, logits)
 
     def prune_and_upsample(self, out: LevelOutput) -> LevelOutput:
@@ -273,6 +289,11 @@ class VortxNet(nn.Module):
         feats = [[m.view(b, v, *m.shape[1:])[i] for m in maps] for i in range(b)]
 
         predictions: dict[str, LevelPrediction] = {}
+        fine = None
+        if self.uses_stereo:
+            if batch.stereo is None:
+                raise ValueError("these weights take stereo evidence: the batch has none (VortxBatch.stereo)")
+            fine = [self.crop_fine_fusion(batch.origin[i], batch.crop_shape, batch.stereo[i]) for i in range(b)]
         coords = dense_grid_coords(b, [c // 4 for c in batch.crop_shape], batch.images.device)
         previous: LevelOutput | None = None
         out: LevelOutput | None = None
@@ -286,8 +307,8 @@ class VortxNet(nn.Module):
                 coords = previous.coords
             voxel_size = self.config.level_voxel_size(level)
             points = batch.origin.to(torch.float32)[coords[:, 0]] + coords[:, 1:].to(torch.float32) * voxel_size
-            fused, views, stereo_tsdf = self._fuse_batch(level, coords, points, feats, batch, image_hw)
-            out = self.level_step(level, coords, fused, previous, stereo_tsdf)
+            fused, views, evidence = self._fuse_batch(level, coords, points, feats, batch, image_hw, fine)
+            out = self.level_step(level, coords, fused, previous, evidence)
             predictions[name] = LevelPrediction(coords=coords, points=points, logits=out.logits,
                                                 voxel_size=voxel_size, **views)
         return predictions
@@ -300,16 +321,16 @@ class VortxNet(nn.Module):
         feats: list[list[torch.Tensor]],
         batch: VortxBatch,
         image_hw: tuple[int, int],
-    ) -> tuple[torch.Tensor, dict[str, torch.Tensor | None], torch.Tensor | None]:
+        fine: list[FineFusion] | None = None,
+    ) -> tuple[torch.Tensor, dict[str, torch.Tensor | None], LevelEvidence | None]:
         """fuse() per sample (each with its own views), scattered back into the batch's row order.
 
-        coords (N, 4), points (N, 3), feats[sample][level] (V, C, h, w) -> fused (N, C), the
-        per-view fields of LevelPrediction ((N, V) / (N, V, 2)) and, with stereo evidence, the fused
-        stereo TSDF (N,) of each sample's own maps."""
+        coords (N, 4), points (N, 3), feats[sample][level] (V, C, h, w), fine: with stereo evidence
+        each sample's classical fused TSDF -> fused (N, C), the per-view fields of LevelPrediction
+        ((N, V) / (N, V, 2)) and, with stereo evidence, the voxels' LevelEvidence from each sample's
+        own maps."""
         n, v = len(coords), batch.images.shape[1]
-        if self.uses_stereo and batch.stereo is None:
-            raise ValueError("these weights take stereo evidence: the batch has none (VortxBatch.stereo)")
-        stereo_tsdf = points.new_ones(n) if self.uses_stereo else None
+        evidence_rows = LevelEvidence(points.new_ones(n), points.new_zeros(n)) if self.uses_stereo else None
         fused = None
         views: dict[str, torch.Tensor | None] = {
             "proj_occ_logits": None,
@@ -324,7 +345,9 @@ class VortxNet(nn.Module):
             evidence = None
             if self.uses_stereo:
                 evidence = batch.stereo[i].views(batch.stereo_views[i])
-                stereo_tsdf = stereo_tsdf.index_copy(0, rows, self.stereo_tsdf(level, points[rows], batch.stereo[i]))
+                sample = self.level_evidence(level, coords[rows, 1:], points[rows], batch.stereo[i], fine[i])
+                evidence_rows = LevelEvidence(evidence_rows.tsdf.index_copy(0, rows, sample.tsdf.to(points)),
+                                              evidence_rows.start.index_copy(0, rows, sample.start.to(points)))
             fo = self.fuse(level, points[rows], feats[i][level], batch.K[i], batch.cam_to_world[i], image_hw,
                            evidence=evidence)
             if fused is None:
@@ -338,7 +361,7 @@ class VortxNet(nn.Module):
                 views[key][rows] = getattr(fo, key).to(views[key].dtype)
         if fused is None:
             fused = points.new_zeros(n, self.config.feature_channels[level])
-        return fused, views, stereo_tsdf
+        return fused, views, evidence_rows
 
 
 def dense_grid_coords(batch_size: int, shape: list[int], device: torch.device) -> torch.Tensor:

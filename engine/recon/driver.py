@@ -19,7 +19,7 @@ from ..capture import Capture
 from ..errors import VortxError
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..model.outputs import tsdf_from_logits
-from ..model.stereo_evidence import observed_by_prediction
+from ..model.stereo_evidence import FineFusion, observed_by_prediction
 from ..stereo.depth_maps import DepthMap
 from ..stereo.vertex_evidence import attach_evidence
 from .colour import colour_mesh
@@ -167,6 +167,8 @@ def _run_planned(
         if not stereo_maps:
             raise VortxError("these weights take stereo depth, and stereo found no depth map for this capture")
         stereo = SceneStereo.from_depth_maps(stereo_maps, len(plan.keyframes), device)
+        with timer.stage("TSDF fusion"):  # the classical method's field: where the network starts
+            stereo.fine = classical_fine_fusion(plan, stereo_maps, settings.voxel_size, device, progress, cancel)
     final, message = _run_levels(model, plan, settings, cache, device, timer, stats, progress, cancel, stereo)
     del cache
     if final is None:
@@ -194,6 +196,18 @@ def _run_planned(
         with timer.stage("evidence"):
             stats["evidence"] = attach_evidence(mesh, stereo_maps, settings.voxel_size, network_completes=True, device=device)
     return ReconResult(mesh, plan.tiles, stats, None)
+
+
+def classical_fine_fusion(
+    plan: ReconPlan, maps: Sequence[DepthMap], voxel_size: float, device: torch.device,
+    progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
+) -> FineFusion:
+    """The stereo method's own fused TSDF of the run's maps, in the plan grid's fine-voxel frame."""
+    from .stereo_fusion import classical_fusion
+
+    origin, tsdf, _ = classical_fusion(plan, list(maps), voxel_size, device, progress, cancel)
+    offset = np.round((origin - plan.grid.origin) / voxel_size).astype(np.int64)
+    return FineFusion(torch.from_numpy(tsdf).to(device), tuple(int(o) for o in offset))
 
 
 def _coarse_coords(plan: ReconPlan) -> torch.Tensor:
@@ -273,15 +287,16 @@ def _run_levels(
         label = level_label(voxel)
         with timer.stage(f"fusion {label}"):
             fused = _fuse_level(model, level, coords, plan, cache, settings, device, progress, cancel, stereo)
-            stereo_tsdf = None
-            if stereo is not None:  # the fused stereo TSDF of this level's voxels: a 3D CNN input
+            evidence = None
+            if stereo is not None:  # this level's fused stereo TSDF (3D CNN input) and classical start
                 points = torch.as_tensor(plan.grid.origin, dtype=torch.float32) + coords[:, 1:].cpu().float() * voxel
-                stereo_tsdf = model.stereo_tsdf(level, points.to(device), stereo.maps)
+                evidence = model.level_evidence(level, coords[:, 1:].to(device), points.to(device), stereo.maps,
+                                                stereo.fine)
         check(cancel)
         cnn_stage = f"3D CNN {label}"
         report(progress, cnn_stage, 0, 1)
         with timer.stage(cnn_stage), torch.inference_mode():
-            out = model.level_step(level, coords.to(device), fused.to(device), previous, stereo_tsdf)
+            out = model.level_step(level, coords.to(device), fused.to(device), previous, evidence)
             del fused
             occupied = int((out.logits.reshape(-1) > 0).sum())
             stats["levels"].append({"label": label, "voxel_size": voxel, "voxels": int(len(coords)), "occupied": occupied})

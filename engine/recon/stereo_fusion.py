@@ -17,7 +17,7 @@ from ..capture import Capture
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..stereo import StereoOptions, estimate_depth_maps, fuse_depth_maps, stereo_references
 from ..stereo.depth_maps import DepthMap
-from ..stereo.fused_tsdf import drop_unsupported_pieces, fuse_stereo_evidence
+from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS, drop_unsupported_pieces, fuse_stereo_evidence
 from ..stereo.vertex_evidence import attach_evidence
 from .colour import colour_mesh
 from .memory import PeakMemory
@@ -28,9 +28,6 @@ from .recon_result import ReconResult, StageTimer, empty_mesh
 from .settings import ReconSettings
 from .tiles import TileState
 
-# A wider band than the ground truth's 3 voxels averages more views into each surface voxel: +0.01 F
-# on the demo sample at every stereo resolution tried (0.696 -> 0.704 at 160 px, 0.716 -> 0.726 at 200 px).
-FUSION_TRUNCATION_VOXELS = 4.0
 MIN_OBSERVATIONS = 1  # depth maps that must have updated a voxel before it can carry a surface
 
 
@@ -102,7 +99,7 @@ def fusion_grid(plan: ReconPlan, maps: list[DepthMap], voxel_size: float) -> tup
     where stereo found surfaces (the frusta at the bounds' depth reach metres past the walls, and
     fusion's cost is the grid's volume)."""
     lo, hi = plan.bounds.minimum.astype(np.float64), plan.bounds.maximum.astype(np.float64)
-    box = depth_points_box(maps, margin=4 * FUSION_TRUNCATION_VOXELS * voxel_size)
+    box = depth_points_box(maps, margin=4 * CLASSICAL_TRUNCATION_VOXELS * voxel_size)
     if box is not None:
         lo, hi = np.maximum(lo, box[0]), np.minimum(hi, box[1])
         hi = np.maximum(hi, lo + 2 * voxel_size)
@@ -110,6 +107,18 @@ def fusion_grid(plan: ReconPlan, maps: list[DepthMap], voxel_size: float) -> tup
     origin = lattice + np.floor((lo - lattice) / voxel_size) * voxel_size
     dims = np.ceil((hi - origin) / voxel_size).astype(np.int64) + 1
     return origin, tuple(int(d) for d in np.maximum(dims, 2))
+
+
+def classical_fusion(
+    plan: ReconPlan, maps: list[DepthMap], voxel_size: float, device: torch.device,
+    progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The stereo method's fused TSDF of the depth maps: (origin (3,), tsdf, weight), each (X, Y, Z) float32
+    on the plan's voxel lattice (`fusion_grid`), fused with the classical band. An evidence network starts
+    from exactly this field (engine/model/stereo_evidence.py FineFusion)."""
+    origin, dims = fusion_grid(plan, maps, voxel_size)
+    tsdf, weight = fuse_depth_maps(maps, origin, dims, voxel_size, CLASSICAL_TRUNCATION_VOXELS, device, progress, cancel)
+    return origin, tsdf, weight
 
 
 def run_stereo_fusion(
@@ -147,15 +156,14 @@ def run_stereo_fusion(
         }
         check(cancel)
         with timer.stage("TSDF fusion"):
-            origin, dims = fusion_grid(plan, maps, settings.voxel_size)
             fused = None
             if options.evidence_fusion:
-                fused = fuse_stereo_evidence(maps, origin, dims, settings.voxel_size, FUSION_TRUNCATION_VOXELS, device,
+                origin, dims = fusion_grid(plan, maps, settings.voxel_size)
+                fused = fuse_stereo_evidence(maps, origin, dims, settings.voxel_size, CLASSICAL_TRUNCATION_VOXELS, device,
                                              progress, cancel)
                 tsdf, observed = fused.tsdf, fused.surface_voxels(options.min_support)
             else:
-                tsdf, weight = fuse_depth_maps(maps, origin, dims, settings.voxel_size, FUSION_TRUNCATION_VOXELS, device,
-                                               progress, cancel)
+                origin, tsdf, weight = classical_fusion(plan, maps, settings.voxel_size, device, progress, cancel)
                 observed = weight >= MIN_OBSERVATIONS
         check(cancel)
         report(progress, "mesh", 0, 1)
@@ -176,7 +184,7 @@ def run_stereo_fusion(
                 mesh.colors = colour_mesh(mesh, plan, settings, progress, cancel)
             with timer.stage("evidence"):  # how well each vertex was observed: the confidence layer
                 stats["evidence"] = attach_evidence(mesh, maps, settings.voxel_size, network_completes=False, device=device,
-                                                    truncation_voxels=FUSION_TRUNCATION_VOXELS)
+                                                    truncation_voxels=CLASSICAL_TRUNCATION_VOXELS)
     for tile in plan.active_tiles:
         tile.state = TileState.DONE if message is None else TileState.EMPTY
     stats["mesh"] = {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces))}

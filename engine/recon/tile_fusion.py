@@ -18,6 +18,7 @@ import torch
 
 from ..jobs import CancelToken, check
 from ..model.outputs import StereoEvidence
+from ..model.stereo_evidence import FineFusion
 from .features import FeatureCache
 
 
@@ -26,10 +27,12 @@ class SceneStereo:
     """The run's stereo depth maps for weights that take them.
 
     maps: every map (StereoEvidence, on the run's device); keyframe_map (n_keyframes,) int64: the map
-    of each keyframe, -1 for keyframes that got none (stereo gives maps to at most `stereo_views`)."""
+    of each keyframe, -1 for keyframes that got none (stereo gives maps to at most `stereo_views`);
+    fine: the classical method's fused TSDF of the maps, where the network starts (set by the driver)."""
 
     maps: StereoEvidence
     keyframe_map: np.ndarray
+    fine: Optional[FineFusion] = None
 
     @classmethod
     def from_depth_maps(cls, depth_maps: Sequence, n_keyframes: int, device: torch.device) -> "SceneStereo":

@@ -5,6 +5,8 @@ the plumbing and the residual start, not about matching quality (tests/engine/st
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -15,11 +17,11 @@ from engine.capture import load_capture
 from engine.model.config import StereoEvidenceConfig, VortxConfig
 from engine.model.vortx import VortxNet
 from engine.recon.driver import run_reconstruction
-from engine.recon.mesh import extract_mesh
 from engine.recon.plan import plan_reconstruction
 from engine.recon.settings import ReconSettings
 from engine.recon.synthetic import make_synthetic_capture, render_box_room
-from engine.stereo import DepthMap, fuse_depth_maps
+from engine.recon.stereo_fusion import run_stereo_fusion
+from engine.stereo import DepthMap
 
 ROOM = (3.0, 3.0, 2.5)
 VOXEL = 0.08
@@ -52,17 +54,12 @@ def test_untrained_evidence_network_gives_the_classical_fusion_surface(capture, 
     learned = run_reconstruction(net, capture, settings, torch.device("cpu"), plan=plan)
     maps = exact_depth_maps(capture, plan, None)
     assert learned.stats["stereo"]["references"] == len(maps)
-    origin = plan.grid.origin
-    dims = np.ceil((plan.bounds.maximum - origin) / VOXEL).astype(int) + 1
-    tsdf, weight = fuse_depth_maps(maps, origin, dims, VOXEL)
-    observed = weight >= 1
-    classical = extract_mesh(np.argwhere(observed), tsdf[observed], origin, VOXEL)
+    classical = run_stereo_fusion(capture, dataclasses.replace(settings, method="stereo"), torch.device("cpu"),
+                                  plan=plan_reconstruction(capture, settings)).mesh
     a, b = learned.mesh.vertices, classical.vertices
-    assert len(a) > 500 and len(b) > 500
-    # Same surface: nearly every vertex of each mesh lies within a voxel of the other mesh.
+    assert len(b) > 500
+    # The same mesh: same vertex count and every vertex of each within a hundredth of a voxel of the other's.
+    assert len(a) == len(b)
     d_ab, _ = cKDTree(b).query(a)
     d_ba, _ = cKDTree(a).query(b)
-    assert np.mean(d_ab < VOXEL) > 0.95
-    # Measured 0.86: coarse voxels whose corner no map reaches are pruned, losing some surface at the
-    # edges of the observed space (the coarse prior samples one corner per 16 cm voxel).
-    assert np.mean(d_ba < VOXEL) > 0.8
+    assert d_ab.max() < 0.01 * VOXEL and d_ba.max() < 0.01 * VOXEL

@@ -17,6 +17,7 @@ from engine.model.outputs import StereoEvidence
 from engine.model.stereo_evidence import fused_tsdf, view_evidence
 from engine.model.vortx import VortxNet
 from engine.stereo import DepthMap, fuse_depth_maps
+from engine.stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
 
 REPO = Path(__file__).resolve().parents[3]
 K = np.array([[50.0, 0.0, 32.0], [0.0, 50.0, 24.0], [0.0, 0.0, 1.0]])
@@ -115,20 +116,35 @@ def test_untrained_evidence_network_reproduces_the_fused_tsdf_at_the_fine_level(
     torch.set_num_threads(1)
     net = VortxNet(tiny_config(stereo_evidence=StereoEvidenceConfig())).eval()
     maps = tilted_maps()
-    origin, crop = np.array([-0.6, -0.4, 1.4]), (24, 20, 24)
+    origin, crop = np.array([-0.613, -0.397, 1.4071]), (24, 20, 24)
     with torch.no_grad():
         fine = net(evidence_batch(maps, origin, crop))["fine"]
-    expected = fused_tsdf(fine.points, StereoEvidence.from_depth_maps(maps), 3 * 0.04)
-    predicted, expected = tsdf_from_logits(fine.logits).numpy(), expected.numpy()
+    # The classical method's own field (its band, not the ground truth's 3 voxels), on the crop's grid
+    # (whose origin the batch holds in float32).
+    dense, weight = fuse_depth_maps(maps, origin.astype(np.float32).astype(np.float64), crop, 0.04,
+                                    CLASSICAL_TRUNCATION_VOXELS)
+    expected = dense[tuple(fine.coords[:, 1:].numpy().T)]
+    predicted = tsdf_from_logits(fine.logits).numpy()
     observed = expected < 1
     np.testing.assert_allclose(predicted[observed], expected[observed], atol=1e-3)
     assert (predicted[~observed] >= 1).all()  # unobserved stays "unobserved" (no surface in the mesh)
-    # Every fine voxel next to the classical surface survived the coarse and medium pruning.
-    dense, _ = fuse_depth_maps(maps, origin, crop, 0.04)
-    surface = np.argwhere(np.abs(dense) < 0.5)
-    kept = {tuple(c) for c in fine.coords[:, 1:].tolist()}
-    assert len(surface) > 500
-    assert np.mean([tuple(c) in kept for c in surface.tolist()]) > 0.98
+    # Every corner of every marching-cubes cell where the classical surface passes survived the coarse
+    # and medium pruning, so the untrained network's mesh is the classical one.
+    corners = surface_cell_corners(dense, weight > 0)
+    kept = np.zeros(crop, bool)
+    kept[tuple(fine.coords[:, 1:].numpy().T)] = True
+    assert len(corners) > 500
+    assert kept[tuple(corners.T)].all()
+
+
+def surface_cell_corners(tsdf: np.ndarray, observed: np.ndarray) -> np.ndarray:
+    """(M, 3) the distinct corner voxels of the cells whose 8 corners are observed and change sign."""
+    X, Y, Z = tsdf.shape
+    offsets = [(dx, dy, dz) for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)]
+    values = np.stack([tsdf[dx:X - 1 + dx, dy:Y - 1 + dy, dz:Z - 1 + dz] for dx, dy, dz in offsets])
+    seen = np.stack([observed[dx:X - 1 + dx, dy:Y - 1 + dy, dz:Z - 1 + dz] for dx, dy, dz in offsets]).all(axis=0)
+    cells = np.argwhere(seen & (values.min(axis=0) < 0) & (values.max(axis=0) > 0))
+    return np.unique(np.concatenate([cells + np.array(o) for o in offsets]), axis=0)
 
 
 def test_evidence_network_refuses_to_run_without_evidence():
