@@ -25,6 +25,9 @@ class PhaseConfig:
     warmup_steps: int = 0  # linear warm-up from 1e-10 to lr (spec: 2,000 steps)
     freeze_backbone: bool = True
     use_proj_occ: bool = False  # softmax-with-null pooling (True) or masked mean (False)
+    # Train only the levels' output layers (a stereo-evidence model then learns corrections to classical
+    # fusion from features it cannot yet change, before the whole network moves).
+    heads_only: bool = False
 
 
 @dataclass
@@ -53,6 +56,12 @@ class TrainConfig:
     device: str = "auto"  # "auto", "cpu", "cuda"
     threads: int = 0  # torch.set_num_threads; 0 = leave as is
     max_minutes: float = 0.0  # stop (with a checkpoint) after this wall time; 0 = no limit
+    # Learning curve: every `curve_every` steps (and at step 0) reconstruct the `curve_rooms` (held-out
+    # rendered rooms) with the weights as they are and append F and the surface metrics to
+    # <out_dir>/curve.jsonl (engine/train/curve.py); `curve_settings` are ReconSettings overrides.
+    curve_rooms: list[str] = field(default_factory=list)
+    curve_every: int = 0
+    curve_settings: dict[str, Any] = field(default_factory=dict)
     base_dir: str = "."  # relative paths are resolved against this folder
 
     @property

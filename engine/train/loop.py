@@ -35,6 +35,7 @@ from .config import PhaseConfig, TrainConfig
 from ..data.room_folders import find_rooms
 from .batching import CropDataset, RoomSampler, TrainBatch
 from .crops import CropSettings
+from .curve import CURVE_FILE, curve_due, has_point, score_point
 
 LEVELS = 3
 CHECKPOINT = "checkpoint.pt"
@@ -123,7 +124,14 @@ def configure_phase(net: nn.Module, phase: PhaseConfig) -> list[nn.Parameter]:
     """Freeze/unfreeze for a phase; returns the parameters the optimiser must update.
 
     Phase with freeze_backbone: every trunk parameter is frozen. Otherwise the trunk is trainable
-    except its BatchNorm layers (affine parameters frozen, never passed to the optimiser)."""
+    except its BatchNorm layers (affine parameters frozen, never passed to the optimiser). Phase with
+    heads_only: only the levels' output layers train."""
+    if phase.heads_only:
+        heads = {id(p) for p in net.output_layers.parameters()}
+        for p in net.parameters():
+            p.requires_grad_(id(p) in heads)
+        set_pooling(net, phase.use_proj_occ)
+        return [p for p in net.parameters() if p.requires_grad]
     trunk = trunk_modules(net)
     trunk_params = {id(p) for m in trunk for p in m.parameters()}
     trunk_bn_params = {id(p) for m in bn_modules(trunk) for p in m.parameters()}
@@ -357,9 +365,12 @@ class Trainer:
         if self.log_enabled:
             self.out.mkdir(parents=True, exist_ok=True)
             drop_logged_steps_after(self.out / "losses.jsonl", self.step)
+            drop_logged_steps_after(self.out / CURVE_FILE, self.step)
             log = open(self.out / "losses.jsonl", "a")
         records = []
         try:
+            if self.log_enabled and curve_due(self.cfg, self.step) and not has_point(self.out / CURVE_FILE, self.step):
+                self._curve_point()
             while self.step < until:
                 rec = self.train_step()
                 if not math.isfinite(rec["loss"]):
@@ -374,6 +385,8 @@ class Trainer:
                     bar.set_postfix(phase=rec["phase"], loss=f"{rec['loss']:.3f}")
                 if on_step:
                     on_step(rec)
+                if self.log_enabled and curve_due(self.cfg, self.step):
+                    self._curve_point()
                 timed_out = self._agree(bool(max_minutes) and (time.time() - start) > 60 * max_minutes)
                 # Every rank takes part in a checkpoint (it gathers their RNG and sampler states); only
                 # the main rank writes it.
@@ -388,6 +401,14 @@ class Trainer:
                 log.close()
         self.history.extend(records)
         return records
+
+    def _curve_point(self) -> None:
+        """A learning-curve point (engine/train/curve.py); its time does not count as step time."""
+        t0 = time.time()
+        lines = score_point(self.net, self.cfg, self.step, self.out)
+        summary = ", ".join(f"{l['method']} F {l['fscore']:.3f} normals {l['normal_agreement']:.3f} "
+                            f"floaters {l['floater_share']:.3f}" for l in lines)
+        print(f"curve at step {self.step}: {summary} ({time.time() - t0:.0f} s)", flush=True)
 
     def _agree(self, flag: bool) -> bool:
         """True on every rank when it is True on any (ranks must stop at the same step, or the
