@@ -30,12 +30,7 @@ CURVE_SETTINGS = {"image_long_side": 96, "views": 6, "stereo_image_size": 160, "
                   "colour_views": 1}
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

@@ -41,12 +41,7 @@ def _trainer(cfg, room):
     return Trainer(cfg, dataset=ds, pretrained=False, progress=False, log=True)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_overfit_fixed_batch(tmp_path, room):
