@@ -13,6 +13,12 @@ settings, its stages reported separately (stereo depth, TSDF fusion, mesh, colou
 checked against the cost budget of issue 11: within 2x the CPU time of VoRTX on the same capture
 (at the most views per tile measured there) and within VoRTX's peak memory + 1 GiB.
 
+The learned method with stereo evidence (an untrained network of the training recipe's widths, or
+`--evidence-weights`) runs on the same capture as stereo fusion, its stages reported separately: the
+stereo stages it shares with the classical method, and the network (2D features, view fusion, 3D CNN).
+It is checked against issue 19's budget: within 1.5x the classical method's CPU time per keyframe and
+within its peak memory + 1 GiB.
+
 The texture bake (VR preset: engine.texture.vr.textured_result) runs on the first stereo mesh with
 all its capture's photos, at each of TEXTURE_SIZES (--quick: the smallest): atlas, texels, bake
 seconds and the bake's own peak RSS.
@@ -36,6 +42,11 @@ MB = 2**20
 STEREO_CPU_BUDGET = 2.0  # stereo fusion may take this many times VoRTX's CPU seconds on the same capture
 STEREO_MEMORY_BUDGET = 2**30  # ... and this many bytes more peak RSS
 STEREO_STAGES = ("stereo depth", "TSDF fusion", "mesh", "colour", "evidence")
+EVIDENCE_CPU_BUDGET = 1.5  # the learned method may take this many times stereo fusion's CPU seconds per keyframe
+EVIDENCE_MEMORY_BUDGET = 2**30  # ... and this many bytes more peak RSS
+# The widths of the evidence model's training recipe (configs/train_evidence.json).
+EVIDENCE_WIDTHS = {"feature_channels": (32, 24, 16), "unet_base_widths": (16, 16, 8), "image_long_side": 128,
+                   "sparse_norm_statistics": "scene"}
 
 
 @dataclass(frozen=True)
@@ -74,6 +85,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="one small run and a small sparse-conv check (about a minute)")
     parser.add_argument("--out", type=Path, default=None, help="also write the results as JSON here")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default %(default)s)")
+    parser.add_argument("--evidence-weights", type=Path, default=None,
+                        help="weights of the learned method with stereo evidence (default: untrained, the recipe's widths)")
 
 
 def machine_info() -> dict[str, Any]:
@@ -190,6 +203,52 @@ def run_stereo_case(case: Case, device: str, workdir: Path) -> tuple[dict[str, A
     }, result.mesh
 
 
+def network_seconds(timings: dict[str, float]) -> float:
+    """Seconds in the network's own stages: 2D features, view fusion and the 3D CNN at every level."""
+    return timings.get("features", 0.0) + stage_sum(timings, "fusion ") + stage_sum(timings, "3D CNN")
+
+
+def run_evidence_case(case: Case, device: str, workdir: Path, weights: Optional[Path]) -> dict[str, Any]:
+    """One run of the learned method with stereo evidence on `case`'s capture and region, default settings."""
+    import torch
+
+    from .model.config import StereoEvidenceConfig, VortxConfig
+    from .model.vortx import VortxNet
+    from .recon import ReconSettings
+    from .recon.driver import run_reconstruction
+    from .recon.network import load_network
+
+    settings = ReconSettings(method="vortx", device=device, max_room_size=case.region)
+    if weights is not None:
+        model, _, _ = load_network(str(weights), settings.seed, torch.device(device))
+    else:
+        torch.manual_seed(0)
+        model = VortxNet(VortxConfig(**EVIDENCE_WIDTHS, stereo_evidence=StereoEvidenceConfig())).to(device).eval()
+    result = run_reconstruction(model, bench_capture(case, workdir), settings, torch.device(device))
+    stats = result.stats
+    total = stats["timings_s"]["total"]
+    return {
+        "case": case.name, "weights": str(weights) if weights else "untrained (recipe widths)",
+        "keyframes": stats["keyframes"], "voxels": [lv["voxels"] for lv in stats["levels"]],
+        "mesh_faces": stats.get("mesh", {}).get("faces", 0), "timings_s": stats["timings_s"],
+        "cpu_timings_s": stats["cpu_timings_s"], "network_s": round(network_seconds(stats["timings_s"]), 3),
+        "network_cpu_s": round(network_seconds(stats["cpu_timings_s"]), 3),
+        "keyframes_per_s": stats["keyframes"] / total if total else None,
+        "peak_rss_bytes": stats["memory"]["peak_rss_bytes"], "message": result.message,
+    }
+
+
+def compare_with_stereo(evidence_run: dict[str, Any], stereo_runs: list[dict[str, Any]]) -> dict[str, Any]:
+    """The learned run against the stereo run of the same case: CPU seconds per keyframe ratio, extra
+    peak RSS, and whether both stay within issue 19's budget."""
+    stereo = next(r for r in stereo_runs if r["case"] == evidence_run["case"])
+    per_keyframe = lambda run: run["cpu_timings_s"]["total"] / max(run["keyframes"], 1)  # noqa: E731
+    cpu_ratio = per_keyframe(evidence_run) / per_keyframe(stereo)
+    extra = evidence_run["peak_rss_bytes"] - stereo["peak_rss_bytes"]
+    return {"cpu_ratio_per_keyframe": round(cpu_ratio, 3), "extra_peak_rss_bytes": int(extra),
+            "within_budget": bool(cpu_ratio <= EVIDENCE_CPU_BUDGET and extra <= EVIDENCE_MEMORY_BUDGET)}
+
+
 def run_texture_case(case: Case, mesh: Any, texture_size: int, workdir: Path) -> dict[str, Any]:
     """The VR preset's texture bake of `mesh` (made from `case`'s capture) from all that capture's
     photos at `texture_size`: the stages' seconds and the bake's peak RSS."""
@@ -273,6 +332,21 @@ def markdown(report: dict[str, Any]) -> str:
                 + f" | {t['total']:.1f} ({c['total']:.1f}) | {r['keyframes_per_s']:.2f} | {r['peak_rss_bytes'] / MB:.0f} "
                 f"| {v['cpu_ratio']:.2f}x | {v['extra_peak_rss_bytes'] / MB:+.0f} | {'yes' if v['within_budget'] else 'NO'} |"
             )
+    if report.get("evidence_runs"):
+        lines += ["", "The learned method with stereo evidence, same captures and regions, default settings; "
+                  f"budget: CPU time per keyframe <= {EVIDENCE_CPU_BUDGET:g}x stereo fusion's, peak RSS <= its + "
+                  f"{EVIDENCE_MEMORY_BUDGET / 2**30:g} GiB:", "",
+                  "| case | weights | keyframes | stereo depth s | TSDF fusion s | network s (CPU s) | mesh + colour s "
+                  "| total s (CPU s) | peak RSS MB | CPU/keyframe vs stereo | extra RSS MB | within budget |",
+                  "|---" * 12 + "|"]
+        for r in report["evidence_runs"]:
+            t, c, v = r["timings_s"], r["cpu_timings_s"], r["versus_stereo"]
+            lines.append(
+                f"| {r['case']} | {r['weights']} | {r['keyframes']} | {t.get('stereo depth', 0):.1f} | {t.get('TSDF fusion', 0):.1f} "
+                f"| {r['network_s']:.1f} ({r['network_cpu_s']:.1f}) | {t.get('mesh', 0) + t.get('colour', 0):.1f} "
+                f"| {t['total']:.1f} ({c['total']:.1f}) | {r['peak_rss_bytes'] / MB:.0f} | {v['cpu_ratio_per_keyframe']:.2f}x "
+                f"| {v['extra_peak_rss_bytes'] / MB:+.0f} | {'yes' if v['within_budget'] else 'NO'} |"
+            )
     if report.get("texture_runs"):
         lines += ["", "Texture bake (VR preset: small pieces dropped, decimated to the face budget, xatlas atlas, "
                   "every photo at full resolution) of the stereo mesh:", "",
@@ -323,6 +397,13 @@ def run(args: argparse.Namespace) -> int:
             run["versus_vortx"] = compare_with_vortx(run, report["runs"])
             report["stereo_runs"].append(run)
             meshes.append((case, mesh))
+            _save_partial(report, args.out)
+        report["evidence_runs"] = []
+        for case, _ in meshes:
+            print(f"running the learned method with stereo evidence on {case.name} ...", file=sys.stderr, flush=True)
+            run = run_evidence_case(case, args.device, workdir, args.evidence_weights)
+            run["versus_stereo"] = compare_with_stereo(run, report["stereo_runs"])
+            report["evidence_runs"].append(run)
             _save_partial(report, args.out)
         report["texture_runs"] = []
         case, mesh = meshes[0]

@@ -21,6 +21,7 @@ from ..jobs import CancelToken, ProgressCallback, check, report
 from ..model.outputs import tsdf_from_logits
 from ..model.stereo_evidence import FineFusion, observed_by_prediction
 from ..stereo.depth_maps import DepthMap
+from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
 from ..stereo.vertex_evidence import attach_evidence
 from .colour import colour_mesh
 from .features import FeatureCache, encode_keyframes, keyframe_image_size
@@ -194,7 +195,9 @@ def _run_planned(
         mesh.colors = colour_mesh(mesh, plan, settings, progress, cancel)
     if stereo_maps:
         with timer.stage("evidence"):
-            stats["evidence"] = attach_evidence(mesh, stereo_maps, settings.voxel_size, network_completes=True, device=device)
+            # Judged in the band the classical surface it started from was fused with, as the stereo method does.
+            stats["evidence"] = attach_evidence(mesh, stereo_maps, settings.voxel_size, network_completes=True, device=device,
+                                                truncation_voxels=CLASSICAL_TRUNCATION_VOXELS)
     return ReconResult(mesh, plan.tiles, stats, None)
 
 

@@ -3,8 +3,8 @@ exercised end to end by tests/engine/recon/test_driver.py)."""
 
 from __future__ import annotations
 
-from engine.bench import (FULL_CASES, QUICK_CASES, compare_with_vortx, machine_info, markdown, projected_memory,
-                          stereo_cases)
+from engine.bench import (FULL_CASES, QUICK_CASES, compare_with_stereo, compare_with_vortx, machine_info, markdown,
+                          network_seconds, projected_memory, stereo_cases)
 from engine.recon.memory_estimate import (CNN_BYTES_PER_VOXEL, box_room_surface_area, coarse_voxels, estimate_memory,
                                           keep_fraction_voxels, surface_band_voxels)
 
@@ -90,3 +90,28 @@ def test_report_table_shows_the_texture_bake():
     table = markdown(report)
     assert "| texture px | photos | faces (in) | charts | texels (seen) | atlas s | texels s | bake s |" in table
     assert "| N=20, 1.5 m region | 2048 | 24 | 30000 (30000) | 812 | 2900000 (70 %) | 12.0 | 1.5 | 9.2 | 23.0 (24.5) | 900 (+300) |" in table
+
+
+def _evidence_run(cpu_total: float, peak_mb: float, keyframes: int = 64) -> dict:
+    timings = {"keyframes": 0.1, "stereo depth": 30.0, "TSDF fusion": 1.5, "features": 3.0, "fusion 16 cm": 1.0,
+               "3D CNN 16 cm": 0.5, "fusion 8 cm": 2.0, "3D CNN 8 cm": 1.0, "fusion 4 cm": 4.0, "3D CNN 4 cm": 2.5,
+               "mesh": 0.2, "colour": 2.0, "evidence": 0.4, "total": 48.0}
+    return {"case": "N=60, 2 m room", "weights": "untrained (recipe widths)", "keyframes": keyframes,
+            "timings_s": timings, "cpu_timings_s": {"total": cpu_total}, "network_s": network_seconds(timings),
+            "network_cpu_s": 20.0, "peak_rss_bytes": int(peak_mb * 2**20)}
+
+
+def test_learned_method_budget_is_one_and_a_half_times_stereo_per_keyframe_and_one_gib_more():
+    stereo = [_stereo_run(80.0, 1500)]
+    assert network_seconds(_evidence_run(0, 0)["timings_s"]) == 3.0 + 1.0 + 0.5 + 2.0 + 1.0 + 4.0 + 2.5  # not "TSDF fusion"
+    inside = compare_with_stereo(_evidence_run(110.0, 2400), stereo)
+    assert inside == {"cpu_ratio_per_keyframe": round(110 / 80, 3), "extra_peak_rss_bytes": 900 * 2**20, "within_budget": True}
+    assert not compare_with_stereo(_evidence_run(125.0, 2400), stereo)["within_budget"]  # > 1.5x per keyframe
+    assert compare_with_stereo(_evidence_run(125.0, 2400, keyframes=128), stereo)["within_budget"]  # per keyframe
+    assert not compare_with_stereo(_evidence_run(110.0, 2600), stereo)["within_budget"]  # > 1 GiB more
+    run = _evidence_run(110.0, 2400)
+    run["versus_stereo"] = compare_with_stereo(run, stereo)
+    report = {"machine": machine_info(), "runs": [], "stereo_runs": [], "evidence_runs": [run], "sparse_vs_dense": [],
+              "projected_memory": {"room_m": [10, 10, 3], "views": 60, "keyframes": 500, "image_size": [640, 480]}}
+    assert ("| N=60, 2 m room | untrained (recipe widths) | 64 | 30.0 | 1.5 | 14.0 (20.0) | 2.2 | 48.0 (110.0) | 2400 "
+            "| 1.38x | +900 | yes |") in markdown(report)

@@ -54,8 +54,12 @@ def test_untrained_evidence_network_gives_the_classical_fusion_surface(capture, 
     learned = run_reconstruction(net, capture, settings, torch.device("cpu"), plan=plan)
     maps = exact_depth_maps(capture, plan, None)
     assert learned.stats["stereo"]["references"] == len(maps)
-    classical = run_stereo_fusion(capture, dataclasses.replace(settings, method="stereo"), torch.device("cpu"),
-                                  plan=plan_reconstruction(capture, settings)).mesh
+    classical_run = run_stereo_fusion(capture, dataclasses.replace(settings, method="stereo"), torch.device("cpu"),
+                                      plan=plan_reconstruction(capture, settings))
+    classical = classical_run.mesh
+    # The confidence layer judges both alike: what no map observed is what the network would have added.
+    assert learned.stats["evidence"]["completed"] == classical_run.stats["evidence"]["unobserved"]
+    assert learned.stats["evidence"]["seen_by_3_plus"] == classical_run.stats["evidence"]["seen_by_3_plus"]
     a, b = learned.mesh.vertices, classical.vertices
     assert len(b) > 500
     # The same mesh: same vertex count and every vertex of each within a hundredth of a voxel of the other's.
