@@ -39,11 +39,14 @@ EVIDENCE_CHANNELS = 3  # projective signed distance, confidence, valid flag
 POINT_CHUNK = 16384  # voxels per fused-TSDF pass: bounds the (chunk, maps) float64 work arrays
 OCCUPANCY_PRIOR_GAIN = 20.0  # logit per unit of |tsdf|: confident, but a trained head can overrule it
 NEAR_SURFACE = 0.999  # |fused tsdf| below this = within the truncation band of some view's depth
-MAX_FINE_LOGIT = float(np.arctanh(0.999))
 # A predicted fine TSDF at or above this means "unobserved", as the +1 of the training targets: the
 # mesh of an evidence network leaves those voxels out, as classical fusion leaves out the voxels no
 # depth map reached (a free voxel next to an unobserved one is not a surface).
 UNOBSERVED_TSDF = 1.0
+# The fine logit an untrained network gives a voxel no map observed: TSDF 1.01, just "unobserved", and
+# not deep in tanh's flat tail (at TSDF 1.049 the gradient is 40x smaller), so training can still
+# pull it down where the room has surface that stereo missed (completion).
+UNOBSERVED_START_LOGIT = float(np.arctanh(1.01 / TSDF_SCALE))
 
 
 def observed_by_prediction(tsdf: torch.Tensor) -> torch.Tensor:
@@ -172,12 +175,12 @@ def prior_logits(level_is_fine: bool, value: torch.Tensor) -> torch.Tensor:
     """The logits an untrained evidence model starts from (its heads' last layers are zero).
 
     Fine level, value = the classical fused TSDF of the voxel: the logit whose TSDF (1.05 tanh) is that
-    TSDF, and for unobserved voxels (+1) the largest one (TSDF 1.049 >= UNOBSERVED_TSDF: no surface
+    TSDF, and for unobserved voxels (+1) UNOBSERVED_START_LOGIT (TSDF 1.01 >= UNOBSERVED_TSDF: no surface
     there, see `observed_by_prediction`).
     Coarse and medium, value = the block's `FineFusion.block_distance`: an occupancy logit that keeps
     every voxel holding a fine voxel near an observed surface (|tsdf| < 1) and prunes the rest, so the
     fine level sees every voxel the classical surface needs."""
     if level_is_fine:
         logits = torch.atanh((value / TSDF_SCALE).clamp(-0.999, 0.999))
-        return torch.where(value >= 1, torch.full_like(logits, MAX_FINE_LOGIT), logits)
+        return torch.where(value >= 1, torch.full_like(logits, UNOBSERVED_START_LOGIT), logits)
     return OCCUPANCY_PRIOR_GAIN * (NEAR_SURFACE - value)
