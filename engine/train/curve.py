@@ -45,7 +45,8 @@ def score_point(net: nn.Module, cfg: TrainConfig, step: int, out: Path) -> list[
     methods = {LEARNED: str(weights)}
     if step == 0:
         methods[CLASSICAL] = STEREO_METHOD
-    result = evaluate_rooms(rooms, methods, dict(cfg.curve_settings), box=False)
+    overrides = {k: tuple(v) if isinstance(v, list) else v for k, v in cfg.curve_settings.items()}  # JSON lists
+    result = evaluate_rooms(rooms, methods, overrides, box=False)
     lines = []
     for label in methods:
         per_room = {room: {k: m[k] for k in CURVE_KEYS} for room, m in result["per_room"][label].items()}

@@ -26,7 +26,7 @@ from fixtures_rooms import box_room
 ROOM_SIZE = (3.0, 2.6, 2.4)
 TINY_EVIDENCE_MODEL = {"feature_channels": [8, 8, 8], "unet_base_widths": [4, 4, 4], "max_train_voxels": [2048, 4096],
                        "stereo_evidence": {}}
-CURVE_SETTINGS = {"image_long_side": 96, "views": 6, "stereo_image_size": 160, "stereo_views": 12, "stereo_planes": 32,
+CURVE_SETTINGS = {"image_long_side": 96, "views": 6, "max_room_size": [7.0, 7.0, 3.5], "stereo_image_size": 160, "stereo_views": 12, "stereo_planes": 32,
                   "colour_views": 1}
 
 
@@ -102,7 +102,7 @@ def test_learning_curve_starts_at_classical_fusion_and_survives_a_resume(tmp_pat
     # Untrained, the evidence network's mesh is the classical method's: the same scores.
     assert classical["fscore"] > 0.3, "stereo should find the box's walls"
     for key in ("fscore", "prec", "recall", "normal_agreement", "floater_share", "pieces"):
-        assert start[key] == pytest.approx(classical[key], abs=1e-9), key
+        assert start[key] == pytest.approx(classical[key], abs=1e-6), key  # float32 round trip through tanh
     assert set(start["rooms"]) == {"box"}
 
     # An interruption after step 2's checkpoint: the resumed run adds step 4 only, once.
