@@ -19,7 +19,7 @@ The truncation is `truncation_voxels` voxels of the level the voxel belongs to (
 The network starts exactly at the classical stereo method (its heads' last layers are zero): the fine
 level outputs the classical fused TSDF (`FineFusion`, fused with the classical band,
 engine/stereo/fused_tsdf.py CLASSICAL_TRUNCATION_VOXELS, from the same depth maps), and the coarse and
-medium levels keep every voxel whose block holds a fine voxel of the classical surface. Training then
+medium levels keep every voxel whose block holds a corner of a cell the classical surface passes through. Training then
 learns corrections: completion where no map saw the surface, removal of what the maps got wrong.
 
 A depth pixel (0, 0) covers [0, 1)^2 (the engine's K convention): a projection lands in pixel floor(u).
@@ -37,8 +37,8 @@ from .outputs import TSDF_SCALE, StereoEvidence
 
 EVIDENCE_CHANNELS = 3  # projective signed distance, confidence, valid flag
 POINT_CHUNK = 16384  # voxels per fused-TSDF pass: bounds the (chunk, maps) float64 work arrays
-OCCUPANCY_PRIOR_GAIN = 20.0  # logit per unit of |tsdf|: confident, but a trained head can overrule it
-NEAR_SURFACE = 0.999  # |fused tsdf| below this = within the truncation band of some view's depth
+OCCUPANCY_PRIOR_GAIN = 5.0  # the start's occupancy logit of a block the classical surface passes: kept, but a head can overrule it
+NEAR_SURFACE = 0.999  # a block value below this (0: the classical surface passes) is kept
 # A predicted fine TSDF at or above this means "unobserved", as the +1 of the training targets: the
 # mesh of an evidence network leaves those voxels out, as classical fusion leaves out the voxels no
 # depth map reached (a free voxel next to an unobserved one is not a surface).
@@ -109,24 +109,42 @@ class FineFusion:
 
     tsdf: torch.Tensor
     offset: tuple[int, int, int]
-    _block_distance: dict = field(default_factory=dict, repr=False)
+    _blocks: dict = field(default_factory=dict, repr=False)
 
     def tsdf_at(self, coords: torch.Tensor) -> torch.Tensor:
         """(N,) fused TSDF of fine voxels (N, 3) (+1 outside the grid)."""
         return _gather(self.tsdf, coords, 1.0, self.offset)
 
-    def block_distance(self, scale: int, coords: torch.Tensor) -> torch.Tensor:
-        """(N,) for voxels (N, 3) of a level `scale` fine voxels wide: the smallest |fused TSDF| over the
-        fine voxels of the block grown by one fine voxel on every side (1 when none is observed).
+    def covers(self, scale: int, coords: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: voxels (N, 3) of a level `scale` fine voxels wide whose block overlaps the grid."""
+        lo = coords.to(torch.int64) * scale
+        first = torch.as_tensor(self.offset, dtype=torch.int64, device=lo.device)
+        end = first + torch.as_tensor(self.tsdf.shape, dtype=torch.int64, device=lo.device)
+        return ((lo + scale > first) & (lo < end)).all(dim=1)
 
-        The margin matters: a marching-cubes cell with a zero crossing has a corner with 0 < tsdf < 1, and
-        its other corners, one fine voxel away, may lie in the neighbouring block; with the margin every
-        block holding a corner of a classical surface cell is kept, so pruning loses none of it (a single
-        corner sample per coarse voxel lost ~14 % of the surface, MODEL.md)."""
-        if scale not in self._block_distance:
-            self._block_distance[scale] = _block_min_abs(self.tsdf, self.offset, scale)
-        pooled, first = self._block_distance[scale]
+    def block_surface(self, scale: int, coords: torch.Tensor) -> torch.Tensor:
+        """(N,) for voxels (N, 3) of a level `scale` fine voxels wide: 0 where the block holds a corner of a
+        marching-cubes cell through which the classical surface passes, else 1. Keeping exactly these
+        blocks keeps every fine voxel the classical mesh needs and no more (a single corner sample per
+        coarse voxel lost ~14 % of the surface, MODEL.md; the whole truncation band is 3x the voxels)."""
+        if scale not in self._blocks:
+            self._blocks[scale] = _blocks_without_surface(surface_cell_corners(self.tsdf), self.offset, scale)
+        pooled, first = self._blocks[scale]
         return _gather(pooled, coords, 1.0, first)
+
+
+def surface_cell_corners(tsdf: torch.Tensor) -> torch.Tensor:
+    """(X, Y, Z) bool: the voxels that are a corner of a cell (2 x 2 x 2 voxels) whose corners are all
+    observed (< 1) and do not all have the same sign: the cells marching cubes puts the surface in."""
+    X, Y, Z = tsdf.shape
+    offsets = [(dx, dy, dz) for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)]
+    corners = torch.stack([tsdf[dx:X - 1 + dx, dy:Y - 1 + dy, dz:Z - 1 + dz] for dx, dy, dz in offsets])
+    low, high = corners.min(dim=0).values, corners.max(dim=0).values
+    cells = (high < 1) & (low <= 0) & (high >= 0) & (low < high)
+    marked = torch.zeros_like(tsdf, dtype=torch.bool)
+    for dx, dy, dz in offsets:
+        marked[dx:X - 1 + dx, dy:Y - 1 + dy, dz:Z - 1 + dz] |= cells
+    return marked
 
 
 def _gather(grid: torch.Tensor, index: torch.Tensor, fill: float, offset: tuple[int, int, int] = (0, 0, 0)) -> torch.Tensor:
@@ -141,17 +159,15 @@ def _gather(grid: torch.Tensor, index: torch.Tensor, fill: float, offset: tuple[
     return torch.where(inside, values, torch.full_like(values, fill))
 
 
-def _block_min_abs(tsdf: torch.Tensor, offset: tuple[int, int, int], scale: int) -> tuple[torch.Tensor, tuple[int, int, int]]:
-    """Min |tsdf| over each level block [scale * i - 1, scale * i + scale] (fine indices, inclusive) ->
-    (grid of blocks, level index of its first block). The grid is padded with 1 (unobserved) so its first
-    fine voxel sits on a block boundary and every block that touches it gets a value."""
+def _blocks_without_surface(marked: torch.Tensor, offset: tuple[int, int, int], scale: int) -> tuple[torch.Tensor, tuple[int, int, int]]:
+    """Per level block of `scale`^3 fine voxels: 0 if it holds a marked voxel, else 1 -> (grid of blocks,
+    level index of its first block). The grid is padded so its first voxel sits on a block boundary."""
     front = [o % scale for o in offset]  # fine voxels of padding before the grid, to a block boundary
     first = tuple((o - f) // scale for o, f in zip(offset, front))
-    back = [scale + 1 for _ in offset]
-    distance = tsdf.abs().to(torch.float32)
-    padded = torch.nn.functional.pad(distance, (front[2], back[2], front[1], back[1], front[0], back[0]), value=1.0)
-    # Min-pooling with windows of scale + 2 starting one voxel before each block; max_pool3d pads with -inf.
-    pooled = -torch.nn.functional.max_pool3d(-padded[None, None], kernel_size=scale + 2, stride=scale, padding=1)[0, 0]
+    back = [(-(n + f)) % scale for n, f in zip(marked.shape, front)]
+    empty = (~marked).to(torch.float32)
+    padded = torch.nn.functional.pad(empty, (front[2], back[2], front[1], back[1], front[0], back[0]), value=1.0)
+    pooled = -torch.nn.functional.max_pool3d(-padded[None, None], kernel_size=scale, stride=scale)[0, 0]
     return pooled, first
 
 
@@ -177,9 +193,10 @@ def prior_logits(level_is_fine: bool, value: torch.Tensor) -> torch.Tensor:
     Fine level, value = the classical fused TSDF of the voxel: the logit whose TSDF (1.05 tanh) is that
     TSDF, and for unobserved voxels (+1) UNOBSERVED_START_LOGIT (TSDF 1.01 >= UNOBSERVED_TSDF: no surface
     there, see `observed_by_prediction`).
-    Coarse and medium, value = the block's `FineFusion.block_distance`: an occupancy logit that keeps
-    every voxel holding a fine voxel near an observed surface (|tsdf| < 1) and prunes the rest, so the
-    fine level sees every voxel the classical surface needs."""
+    Coarse and medium, value = the block's `FineFusion.block_surface` (0: it holds a corner of a classical
+    surface cell, 1: not): an occupancy logit that keeps exactly those blocks (logit ~+5) and prunes the
+    rest (logit just below 0, so a trained head adds a block easily), so the fine level sees every voxel
+    the classical surface needs."""
     if level_is_fine:
         logits = torch.atanh((value / TSDF_SCALE).clamp(-0.999, 0.999))
         return torch.where(value >= 1, torch.full_like(logits, UNOBSERVED_START_LOGIT), logits)

@@ -125,7 +125,7 @@ class VortxNet(nn.Module):
             tsdf = fine.tsdf_at(coords)
             return LevelEvidence(tsdf, prior_logits(True, tsdf))
         tsdf = fused_tsdf(points, evidence, self.evidence_truncation(level)).to(fine.tsdf.device)
-        return LevelEvidence(tsdf, prior_logits(False, fine.block_distance(LEVEL_SCALES[level], coords)))
+        return LevelEvidence(tsdf, prior_logits(False, fine.block_surface(LEVEL_SCALES[level], coords)))
 
     def set_use_proj_occ(self, use_proj_occ: bool) -> None:
         """Switch view pooling: softmax-with-null over projective occupancy (True) or masked mean."""

@@ -284,6 +284,8 @@ def _run_levels(
     """Per level: fuse tile by tile, then ONE 3D CNN over all tiles' voxels (no seams), prune and
     upsample. -> (fine LevelOutput, None), or (None, message) when pruning leaves nothing."""
     coords = _coarse_coords(plan)
+    if stereo is not None:  # where the classical method fused: the room as its depth maps show it
+        coords = coords[stereo.fine.covers(LEVEL_SCALES[0], coords[:, 1:]).cpu()]
     previous = None
     for level, scale in enumerate(LEVEL_SCALES):
         voxel = settings.voxel_size * scale
