@@ -79,3 +79,70 @@ def curve_table(lines: list[dict], keys: Optional[tuple[str, ...]] = None) -> st
         rows.append(f"| {line['step']} | {line['method']} | " + " | ".join(cells) + " |")
     return "\n".join(rows)
 
+
+
+PLOT_KEYS = (("fscore", "F-score"), ("normal_agreement", "normal agreement"), ("floater_share", "floater share"))
+
+
+def plot_curve(lines: list[dict], path: Path, size: tuple[int, int] = (360, 240)) -> Path:
+    """A PNG with one panel per PLOT_KEYS metric: the learned method's curve over the steps (blue) and the
+    classical stereo method at step 0 as a flat line (red), each panel scaled to its own range."""
+    import cv2
+    import numpy as np
+
+    width, height = size
+    learned = sorted((l for l in lines if l["method"] == LEARNED), key=lambda l: l["step"])
+    classical = next((l for l in lines if l["method"] == CLASSICAL), None)
+    if not learned:
+        raise ValueError("the curve has no point of the learned method")
+    last_step = max(max(l["step"] for l in learned), 1)
+    panels = []
+    for key, title in PLOT_KEYS:
+        image = np.full((height, width, 3), 255, np.uint8)
+        values = [l[key] for l in learned] + ([classical[key]] if classical else [])
+        lo, hi = min(values), max(values)
+        pad = max(0.02, 0.1 * (hi - lo))
+        lo, hi = lo - pad, hi + pad
+        left, right, top, bottom = 48, width - 12, 28, height - 30
+
+        def xy(step: float, value: float) -> tuple[int, int]:
+            return (int(left + (right - left) * step / last_step), int(bottom - (bottom - top) * (value - lo) / (hi - lo)))
+
+        cv2.rectangle(image, (left, top), (right, bottom), (180, 180, 180), 1)
+        for value in (lo + pad, hi - pad):
+            cv2.putText(image, f"{value:.3f}", (2, xy(0, value)[1] + 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, (80, 80, 80), 1)
+        if classical:
+            cv2.line(image, xy(0, classical[key]), xy(last_step, classical[key]), (0, 0, 220), 1)
+        points = np.array([xy(l["step"], l[key]) for l in learned], np.int32)
+        cv2.polylines(image, [points], False, (200, 80, 0), 2)
+        for p in points:
+            cv2.circle(image, tuple(int(c) for c in p), 3, (200, 80, 0), -1)
+        cv2.putText(image, title, (left, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (0, 0, 0), 1)
+        cv2.putText(image, f"step {last_step}", (right - 70, height - 10), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (80, 80, 80), 1)
+        panels.append(image)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    cv2.imwrite(str(path), np.concatenate(panels, axis=1))
+    return path
+
+
+def main(argv: Optional[list[str]] = None) -> int:
+    """`python -m engine.train.curve RUN_DIR [--png PATH]`: the run's curve as a Markdown table (and a plot)."""
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="python -m engine.train.curve", description=main.__doc__)
+    parser.add_argument("run", type=Path, help="the training run's out_dir (holds curve.jsonl)")
+    parser.add_argument("--png", type=Path, default=None, help="also plot F, normal agreement and floaters here")
+    args = parser.parse_args(argv)
+    lines = read_curve(args.run / CURVE_FILE)
+    if not lines:
+        print(f"{args.run / CURVE_FILE} holds no curve point yet")
+        return 1
+    print(curve_table(lines))
+    if args.png:
+        print(f"wrote {plot_curve(lines, args.png)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -18,7 +18,7 @@ from engine.recon.synthetic import make_synthetic_capture, render_box_room
 from engine.train.batching import CropDataset
 from engine.train.config import config_from_dict
 from engine.train.crops import CropSettings
-from engine.train.curve import CURVE_FILE, curve_table, read_curve
+from engine.train.curve import CURVE_FILE, curve_table, plot_curve, read_curve
 from engine.train.loop import CHECKPOINT, Trainer, trunk_modules
 from engine.train.room_stereo import RoomStereo
 from fixtures_rooms import box_room
@@ -114,3 +114,6 @@ def test_learning_curve_starts_at_classical_fusion_and_survives_a_resume(tmp_pat
     assert steps == [(0, "learned"), (0, "stereo"), (2, "learned"), (4, "learned")]
     table = curve_table(read_curve(out / CURVE_FILE))
     assert "| 0 | stereo |" in table and "| 4 | learned |" in table
+    picture = cv2.imread(str(plot_curve(read_curve(out / CURVE_FILE), tmp_path / "curve.png")))
+    assert picture.shape == (240, 3 * 360, 3)
+    assert (picture == [200, 80, 0]).all(axis=-1).sum() > 30 and (picture == [0, 0, 220]).all(axis=-1).sum() > 30  # both lines
