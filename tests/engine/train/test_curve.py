@@ -30,7 +30,7 @@ CURVE_SETTINGS = {"image_long_side": 96, "views": 6, "max_room_size": [7.0, 7.0,
                   "colour_views": 1}
 
 
-pytestmark = pytest.mark.usefixtures("one_thread")
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 @pytest.fixture(scope="module")

@@ -41,7 +41,7 @@ def _trainer(cfg, room):
     return Trainer(cfg, dataset=ds, pretrained=False, progress=False, log=True)
 
 
-pytestmark = pytest.mark.usefixtures("one_thread")
+pytestmark = pytest.mark.usefixtures("single_torch_thread")
 
 
 def test_overfit_fixed_batch(tmp_path, room):
