@@ -14,7 +14,7 @@ import torch
 from engine.model.config import StereoEvidenceConfig, VortxConfig
 from engine.model.outputs import VortxBatch, tsdf_from_logits
 from engine.model.outputs import StereoEvidence
-from engine.model.stereo_evidence import fused_tsdf, view_evidence
+from engine.model.stereo_evidence import FineFusion, fused_tsdf, view_evidence
 from engine.model.vortx import VortxNet
 from engine.stereo import DepthMap, fuse_depth_maps
 from engine.stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
@@ -179,3 +179,29 @@ def test_evidence_config_round_trips_and_rejects_typos():
         VortxConfig.from_dict(data)
     with pytest.raises(ValueError, match="transformer"):
         tiny_config(fusion="average", stereo_evidence=StereoEvidenceConfig())
+
+
+@pytest.mark.parametrize("offset", [(0, 0, 0), (5, -3, 2), (-7, 9, -1)])
+def test_blocks_with_surface_and_coverage_against_brute_force(offset):
+    """FineFusion's block rules on a grid whose first voxel is off the block lattice, against a loop
+    over every block: a block is kept when it holds a corner of a cell the surface passes through."""
+    rng = np.random.default_rng(1)
+    tsdf = rng.uniform(-1, 1, (11, 9, 7)).astype(np.float32)
+    tsdf[rng.random(tsdf.shape) < 0.3] = 1.0  # unobserved
+    tsdf[rng.random(tsdf.shape) < 0.5] = -1.0  # free space
+    fine = FineFusion(torch.from_numpy(tsdf), offset)
+    corners = {tuple(c) for c in surface_cell_corners(tsdf, tsdf < 1).tolist()}
+    assert len(corners) > 20
+    for scale in (2, 4):
+        lo = [(o // scale) - 1 for o in offset]
+        hi = [(o + n) // scale + 1 for o, n in zip(offset, tsdf.shape)]
+        blocks = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(lo, hi)], indexing="ij"), -1).reshape(-1, 3)
+        got = fine.block_surface(scale, torch.from_numpy(blocks)).numpy()
+        covered = fine.covers(scale, torch.from_numpy(blocks)).numpy()
+        for block, value, cover in zip(blocks, got, covered):
+            inside = [tuple(np.array(c)) for c in np.ndindex(scale, scale, scale)]
+            local = [tuple(block * scale + np.array(c) - np.array(offset)) for c in inside]
+            expected_surface = any(c in corners for c in local)
+            expected_cover = any(all(0 <= c[a] < tsdf.shape[a] for a in range(3)) for c in local)
+            assert value == (0.0 if expected_surface else 1.0), (scale, block)
+            assert cover == expected_cover, (scale, block)
