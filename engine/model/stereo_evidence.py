@@ -40,8 +40,8 @@ POINT_CHUNK = 16384  # voxels per fused-TSDF pass: bounds the (chunk, maps) floa
 OCCUPANCY_PRIOR_GAIN = 5.0  # the start's occupancy logit of a block the classical surface passes: kept, but a head can overrule it
 NEAR_SURFACE = 0.999  # a block value below this (0: the classical surface passes) is kept
 # A predicted fine TSDF at or above this means "unobserved", as the +1 of the training targets: the
-# mesh of an evidence network leaves those voxels out, as classical fusion leaves out the voxels no
-# depth map reached (a free voxel next to an unobserved one is not a surface).
+# mesh of an evidence network leaves out the voxels classical fusion did not observe either, as the
+# stereo method does (a free voxel next to an unobserved one is not a surface).
 UNOBSERVED_TSDF = 1.0
 # The fine logit an untrained network gives a voxel no map observed: TSDF 1.01, just "unobserved", and
 # not deep in tanh's flat tail (at TSDF 1.049 the gradient is 40x smaller), so training can still
@@ -49,9 +49,16 @@ UNOBSERVED_TSDF = 1.0
 UNOBSERVED_START_LOGIT = float(np.arctanh(1.01 / TSDF_SCALE))
 
 
-def observed_by_prediction(tsdf: torch.Tensor) -> torch.Tensor:
-    """(N,) bool: fine voxels whose predicted TSDF (N,) says observed (< UNOBSERVED_TSDF)."""
-    return tsdf < UNOBSERVED_TSDF
+def meshable_voxels(predicted: torch.Tensor, classical: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Which fine voxels an evidence network's mesh is made of, and their values: (keep (N,) bool,
+    tsdf (N,) in [-1.05, 1]) from the predicted TSDF and the classical fused TSDF of the same N voxels.
+
+    A voxel classical fusion observed stays, whatever the network says: the targets' +1 also means "far
+    behind a surface" (their band is 3 voxels, the classical one 4), and a surface's back-side corners
+    predicted at >= 1 must not cut holes in it; its value is capped at 1. A voxel classical fusion did
+    not observe joins only where the network says it is observed (< UNOBSERVED_TSDF): completion."""
+    keep = (classical < UNOBSERVED_TSDF) | (predicted < UNOBSERVED_TSDF)
+    return keep, predicted.clamp(max=1.0)
 
 
 def _depth_lookup(points: torch.Tensor, evidence: StereoEvidence) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -192,7 +199,7 @@ def prior_logits(level_is_fine: bool, value: torch.Tensor) -> torch.Tensor:
 
     Fine level, value = the classical fused TSDF of the voxel: the logit whose TSDF (1.05 tanh) is that
     TSDF, and for unobserved voxels (+1) UNOBSERVED_START_LOGIT (TSDF 1.01 >= UNOBSERVED_TSDF: no surface
-    there, see `observed_by_prediction`).
+    there, see `meshable_voxels`).
     Coarse and medium, value = the block's `FineFusion.block_surface` (0: it holds a corner of a classical
     surface cell, 1: not): an occupancy logit that keeps exactly those blocks (logit ~+5) and prunes the
     rest (logit just below 0, so a trained head adds a block easily), so the fine level sees every voxel

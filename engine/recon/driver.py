@@ -19,7 +19,7 @@ from ..capture import Capture
 from ..errors import VortxError
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..model.outputs import tsdf_from_logits
-from ..model.stereo_evidence import FineFusion, observed_by_prediction
+from ..model.stereo_evidence import FineFusion, meshable_voxels
 from ..stereo.depth_maps import DepthMap
 from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
 from ..stereo.vertex_evidence import attach_evidence
@@ -181,9 +181,9 @@ def _run_planned(
     with timer.stage("mesh"):
         tsdf = tsdf_from_logits(final.logits.reshape(-1).float()).cpu().numpy()
         voxels = final.coords[:, 1:].cpu().numpy()
-        if stereo is not None:  # evidence weights predict +1 for unobserved voxels: no surface there
-            keep = observed_by_prediction(torch.from_numpy(tsdf)).numpy()
-            voxels, tsdf = voxels[keep], tsdf[keep]
+        if stereo is not None:  # no surface where neither classical fusion nor the network observed
+            keep, values = meshable_voxels(torch.from_numpy(tsdf), stereo.fine.tsdf_at(final.coords[:, 1:]).cpu())
+            voxels, tsdf = voxels[keep.numpy()], values[keep].numpy()
         mesh = extract_mesh(voxels, tsdf, grid.origin, settings.voxel_size)
     report(progress, "mesh", 1, 1)
     stats["mesh"] = {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces))}

@@ -40,7 +40,8 @@ def score_point(net: nn.Module, cfg: TrainConfig, step: int, out: Path) -> list[
         raise ValueError(f"curve_rooms {cfg.curve_rooms} hold no room folders")
     was_training = net.training
     net.eval()
-    weights = save_weights(net, net.config, out / "curve_weights.safetensors")
+    # Each point's weights are kept, so a point can be scored again later (another room, another rule).
+    weights = save_weights(net, net.config, out / "curve_weights" / f"step_{step:06d}.safetensors")
     net.train(was_training)
     methods = {LEARNED: str(weights)}
     if step == 0:

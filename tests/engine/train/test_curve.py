@@ -103,6 +103,7 @@ def test_learning_curve_starts_at_classical_fusion_and_survives_a_resume(tmp_pat
     assert classical["fscore"] > 0.3, "stereo should find the box's walls"
     for key in ("fscore", "prec", "recall", "normal_agreement", "floater_share", "pieces"):
         assert start[key] == pytest.approx(classical[key], abs=1e-6), key  # float32 round trip through tanh
+    assert (out / "curve_weights" / "step_000002.safetensors").is_file()  # each point can be scored again
     assert set(start["rooms"]) == {"box"}
 
     # An interruption after step 2's checkpoint: the resumed run adds step 4 only, once.
