@@ -28,6 +28,7 @@ A depth pixel (0, 0) covers [0, 1)^2 (the engine's K convention): a projection l
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Optional
 
 import numpy as np
 import torch
@@ -49,15 +50,15 @@ UNOBSERVED_TSDF = 1.0
 UNOBSERVED_START_LOGIT = float(np.arctanh(1.01 / TSDF_SCALE))
 
 
-def meshable_voxels(predicted: torch.Tensor, classical: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def meshable_voxels(predicted: torch.Tensor, classical_observed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Which fine voxels an evidence network's mesh is made of, and their values: (keep (N,) bool,
-    tsdf (N,) in [-1.05, 1]) from the predicted TSDF and the classical fused TSDF of the same N voxels.
+    tsdf (N,) in [-1.05, 1]) from the predicted TSDF and whether classical fusion observed the N voxels.
 
     A voxel classical fusion observed stays, whatever the network says: the targets' +1 also means "far
     behind a surface" (their band is 3 voxels, the classical one 4), and a surface's back-side corners
     predicted at >= 1 must not cut holes in it; its value is capped at 1. A voxel classical fusion did
     not observe joins only where the network says it is observed (< UNOBSERVED_TSDF): completion."""
-    keep = (classical < UNOBSERVED_TSDF) | (predicted < UNOBSERVED_TSDF)
+    keep = classical_observed | (predicted < UNOBSERVED_TSDF)
     return keep, predicted.clamp(max=1.0)
 
 
@@ -109,18 +110,29 @@ class FineFusion:
     """The classical stereo method's fused TSDF on a dense grid of fine voxels: where an evidence network
     starts (its heads' last layers are zero, so it outputs `LevelEvidence.start` until trained).
 
-    tsdf:   (X, Y, Z) float32, ground-truth convention (+1 where no depth map reached the voxel).
-    offset: the fine-voxel index, in the frame of the network's voxel coordinates, of tsdf[0, 0, 0].
+    tsdf:     (X, Y, Z) float32, ground-truth convention (+1 where no depth map reached the voxel).
+    offset:   the fine-voxel index, in the frame of the network's voxel coordinates, of tsdf[0, 0, 0].
+    observed: (X, Y, Z) bool, a depth map updated the voxel (classical fusion's weight > 0); None: tsdf < 1
+              (the same but for the rare observed voxel whose every map puts it exactly +1 behind).
     Outside the grid every voxel counts as unobserved (+1): the classical method meshes nothing there.
     """
 
     tsdf: torch.Tensor
     offset: tuple[int, int, int]
+    observed: Optional[torch.Tensor] = None
     _blocks: dict = field(default_factory=dict, repr=False)
+
+    def __post_init__(self) -> None:
+        if self.observed is None:
+            self.observed = self.tsdf < UNOBSERVED_TSDF
 
     def tsdf_at(self, coords: torch.Tensor) -> torch.Tensor:
         """(N,) fused TSDF of fine voxels (N, 3) (+1 outside the grid)."""
         return _gather(self.tsdf, coords, 1.0, self.offset)
+
+    def observed_at(self, coords: torch.Tensor) -> torch.Tensor:
+        """(N,) bool: classical fusion observed the fine voxels (N, 3) (False outside the grid)."""
+        return _gather(self.observed, coords, False, self.offset)
 
     def covers(self, scale: int, coords: torch.Tensor) -> torch.Tensor:
         """(N,) bool: voxels (N, 3) of a level `scale` fine voxels wide whose block overlaps the grid."""
@@ -135,19 +147,20 @@ class FineFusion:
         blocks keeps every fine voxel the classical mesh needs and no more (a single corner sample per
         coarse voxel lost ~14 % of the surface, MODEL.md; the whole truncation band is 3x the voxels)."""
         if scale not in self._blocks:
-            self._blocks[scale] = _blocks_without_surface(surface_cell_corners(self.tsdf), self.offset, scale)
+            self._blocks[scale] = _blocks_without_surface(surface_cell_corners(self.tsdf, self.observed), self.offset, scale)
         pooled, first = self._blocks[scale]
         return _gather(pooled, coords, 1.0, first)
 
 
-def surface_cell_corners(tsdf: torch.Tensor) -> torch.Tensor:
+def surface_cell_corners(tsdf: torch.Tensor, observed: torch.Tensor) -> torch.Tensor:
     """(X, Y, Z) bool: the voxels that are a corner of a cell (2 x 2 x 2 voxels) whose corners are all
-    observed (< 1) and do not all have the same sign: the cells marching cubes puts the surface in."""
+    observed and do not all have the same sign: the cells marching cubes puts the surface in."""
     X, Y, Z = tsdf.shape
     offsets = [(dx, dy, dz) for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)]
     corners = torch.stack([tsdf[dx:X - 1 + dx, dy:Y - 1 + dy, dz:Z - 1 + dz] for dx, dy, dz in offsets])
+    seen = torch.stack([observed[dx:X - 1 + dx, dy:Y - 1 + dy, dz:Z - 1 + dz] for dx, dy, dz in offsets]).all(dim=0)
     low, high = corners.min(dim=0).values, corners.max(dim=0).values
-    cells = (high < 1) & (low <= 0) & (high >= 0) & (low < high)
+    cells = seen & (low <= 0) & (high >= 0) & (low < high)
     marked = torch.zeros_like(tsdf, dtype=torch.bool)
     for dx, dy, dz in offsets:
         marked[dx:X - 1 + dx, dy:Y - 1 + dy, dz:Z - 1 + dz] |= cells

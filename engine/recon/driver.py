@@ -182,7 +182,7 @@ def _run_planned(
         tsdf = tsdf_from_logits(final.logits.reshape(-1).float()).cpu().numpy()
         voxels = final.coords[:, 1:].cpu().numpy()
         if stereo is not None:  # no surface where neither classical fusion nor the network observed
-            keep, values = meshable_voxels(torch.from_numpy(tsdf), stereo.fine.tsdf_at(final.coords[:, 1:]).cpu())
+            keep, values = meshable_voxels(torch.from_numpy(tsdf), stereo.fine.observed_at(final.coords[:, 1:]).cpu())
             voxels, tsdf = voxels[keep.numpy()], values[keep].numpy()
         mesh = extract_mesh(voxels, tsdf, grid.origin, settings.voxel_size)
     report(progress, "mesh", 1, 1)
@@ -206,11 +206,12 @@ def classical_fine_fusion(
     progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
 ) -> FineFusion:
     """The stereo method's own fused TSDF of the run's maps, in the plan grid's fine-voxel frame."""
-    from .stereo_fusion import classical_fusion
+    from .stereo_fusion import MIN_OBSERVATIONS, classical_fusion
 
-    origin, tsdf, _ = classical_fusion(plan, list(maps), voxel_size, device, progress, cancel)
+    origin, tsdf, weight = classical_fusion(plan, list(maps), voxel_size, device, progress, cancel)
     offset = np.round((origin - plan.grid.origin) / voxel_size).astype(np.int64)
-    return FineFusion(torch.from_numpy(tsdf).to(device), tuple(int(o) for o in offset))
+    return FineFusion(torch.from_numpy(tsdf).to(device), tuple(int(o) for o in offset),
+                      observed=torch.from_numpy(weight >= MIN_OBSERVATIONS).to(device))
 
 
 def _coarse_coords(plan: ReconPlan) -> torch.Tensor:
