@@ -403,9 +403,15 @@ class Trainer:
         return records
 
     def _curve_point(self) -> None:
-        """A learning-curve point (engine/train/curve.py); its time does not count as step time."""
+        """A learning-curve point (engine/train/curve.py); its time does not count as step time. A point
+        that fails (a held-out room unreadable, a reconstruction error) is reported and skipped: hours of
+        training are not lost to an evaluation."""
         t0 = time.time()
-        lines = score_point(self.net, self.cfg, self.step, self.out)
+        try:
+            lines = score_point(self.net, self.cfg, self.step, self.out)
+        except Exception as error:  # noqa: BLE001 - any failure of the evaluation, never of the training
+            print(f"curve at step {self.step} failed, training goes on: {type(error).__name__}: {error}", flush=True)
+            return
         summary = ", ".join(f"{l['method']} F {l['fscore']:.3f} normals {l['normal_agreement']:.3f} "
                             f"floaters {l['floater_share']:.3f}" for l in lines)
         print(f"curve at step {self.step}: {summary} ({time.time() - t0:.0f} s)", flush=True)

@@ -118,3 +118,12 @@ def test_learning_curve_starts_at_classical_fusion_and_survives_a_resume(tmp_pat
     picture = cv2.imread(str(plot_curve(read_curve(out / CURVE_FILE), tmp_path / "curve.png")))
     assert picture.shape == (240, 3 * 360, 3)
     assert (picture == [200, 80, 0]).all(axis=-1).sum() > 30 and (picture == [0, 0, 220]).all(axis=-1).sum() > 30  # both lines
+
+
+def test_a_failing_curve_point_is_reported_and_training_goes_on(tmp_path, training_room, curve_rooms, capsys):
+    cfg = evidence_config(tmp_path, tmp_path / "no_rooms_here")
+    trainer = trainer_for(cfg, training_room)
+    trainer.run(until=4)
+    assert trainer.step == 4 and not (cfg.out_path / CURVE_FILE).exists()
+    printed = capsys.readouterr().out
+    assert "curve at step 0 failed, training goes on" in printed and "no_rooms_here" in printed
