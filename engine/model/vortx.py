@@ -111,8 +111,7 @@ class VortxNet(nn.Module):
     def crop_fine_fusion(self, origin: torch.Tensor, shape: tuple[int, int, int], evidence: StereoEvidence) -> FineFusion:
         """The classical fused TSDF of a crop's fine voxels (X, Y, Z) = `shape` at origin (3,) + index *
         voxel_size, from all of its stereo maps (inference fuses the whole scene's grid the same way)."""
-        axes = [torch.arange(n, device=origin.device) for n in shape]
-        index = torch.stack(torch.meshgrid(*axes, indexing="ij"), dim=-1).reshape(-1, 3)
+        index = dense_grid_coords(1, list(shape), origin.device)[:, 1:]
         points = origin.to(torch.float64) + index.to(torch.float64) * self.config.voxel_size
         tsdf = fused_tsdf(points, evidence, CLASSICAL_TRUNCATION_VOXELS * self.config.voxel_size)
         return FineFusion(tsdf.reshape(*shape), (0, 0, 0))
