@@ -48,6 +48,27 @@ UNOBSERVED_TSDF = 1.0
 # not deep in tanh's flat tail (at TSDF 1.049 the gradient is 40x smaller), so training can still
 # pull it down where the room has surface that stereo missed (completion).
 UNOBSERVED_START_LOGIT = float(np.arctanh(1.01 / TSDF_SCALE))
+# A trained network may keep coarse and medium blocks the classical surface does not pass through
+# (completion), and every such block costs the finer levels voxels: at most this share of the
+# classical blocks kept, the most confident first, holds the learned method to its cost budget (issue
+# 19: 1.5x the classical method's CPU per keyframe, its peak memory + 1 GB).
+MAX_ADDED_BLOCK_SHARE = 0.5
+
+
+def cap_added_blocks(keep: torch.Tensor, logits: torch.Tensor, start: torch.Tensor) -> torch.Tensor:
+    """keep (N,) bool of a coarse or medium level, limited to its classical blocks (start > 0, see
+    `prior_logits`) plus at most MAX_ADDED_BLOCK_SHARE times as many other blocks, those of the highest
+    logits (ties: the first rows)."""
+    classical = start > 0
+    added = keep & ~classical
+    budget = int(MAX_ADDED_BLOCK_SHARE * int((keep & classical).sum()))
+    if int(added.sum()) <= budget:
+        return keep
+    rows = torch.nonzero(added).flatten()
+    best = rows[torch.argsort(logits[rows], descending=True, stable=True)[:budget]]
+    capped = keep & classical
+    capped[best] = True
+    return capped
 
 
 def meshable_voxels(predicted: torch.Tensor, classical_observed: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -35,7 +35,8 @@ from .config import LEVEL_IMAGE_STRIDES, LEVEL_NAMES, LEVEL_SCALES, VortxConfig
 from .fpn import FeaturePyramid
 from .view_fusion import AverageFusion, TransformerFusion
 from .outputs import FusionOutput, LevelOutput, LevelPrediction, StereoEvidence, VortxBatch
-from .stereo_evidence import EVIDENCE_CHANNELS, FineFusion, LevelEvidence, fused_tsdf, prior_logits, view_evidence
+from .stereo_evidence import (EVIDENCE_CHANNELS, FineFusion, LevelEvidence, cap_added_blocks, fused_tsdf, prior_logits,
+                              view_evidence)
 from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
 from .unet3d import SparseUNet
 from .view_encoding import ViewDirectionEncoder
@@ -262,9 +263,13 @@ class VortxNet(nn.Module):
             logits = logits + evidence.start.to(logits)
         return LevelOutput(coords, voxels.feats, logits)
 
-    def prune_and_upsample(self, out: LevelOutput) -> LevelOutput:
-        """Keep voxels with logit > 0 and copy each to its 8 children (next level's coordinates)."""
-        kept = out.select(out.logits > 0)
+    def prune_and_upsample(self, out: LevelOutput, evidence: LevelEvidence | None = None) -> LevelOutput:
+        """Keep voxels with logit > 0 and copy each to its 8 children (next level's coordinates).
+        With stereo evidence, the blocks kept beyond the classical ones are capped (`cap_added_blocks`)."""
+        keep = out.logits > 0
+        if evidence is not None:
+            keep = cap_added_blocks(keep, out.logits, evidence.start.to(out.logits))
+        kept = out.select(keep)
         return LevelOutput(
             coords=self.upsampler.upsample_coords(kept.coords),
             features=self.upsampler.upsample_values(kept.features),
@@ -298,7 +303,7 @@ class VortxNet(nn.Module):
         out: LevelOutput | None = None
         for level, name in enumerate(LEVEL_NAMES):
             if out is not None:
-                previous = self.prune_and_upsample(out)
+                previous = self.prune_and_upsample(out, evidence)
                 if len(previous) == 0:
                     break
                 if self.training and self.config.voxel_dropout:

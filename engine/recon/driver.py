@@ -309,7 +309,7 @@ def _run_levels(
             if level == len(LEVEL_SCALES) - 1:
                 report(progress, cnn_stage, 1, 1)
                 return out, None
-            previous = model.prune_and_upsample(out)
+            previous = model.prune_and_upsample(out, evidence)
             del out
         report(progress, cnn_stage, 1, 1)
         if len(previous.coords) == 0:

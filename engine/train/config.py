@@ -47,6 +47,9 @@ class TrainConfig:
     phase2: PhaseConfig = field(
         default_factory=lambda: PhaseConfig(lr=1e-4, freeze_backbone=False, use_proj_occ=True)
     )
+    # Start from these trained weights (safetensors + sidecar of the same model config) instead of the
+    # ImageNet trunk and zero heads: a run that goes on from an earlier run's result with new rooms.
+    init_weights: str = ""
     occ_balanced: bool = False  # occupancy BCE with pos_weight n_empty/n_occupied (not in the spec)
     seed: int = 0
     out_dir: str = "runs/{name}"

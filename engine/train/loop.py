@@ -51,8 +51,30 @@ def build_model(cfg: TrainConfig, pretrained: bool = True):
 
     # The weights remember their training resolution so reconstruction feeds photos at that size.
     mcfg = VortxConfig.from_dict({"image_long_side": max(cfg.image_size), **cfg.model})
-    net = VortxNet(mcfg, pretrained_backbone=pretrained)
+    net = VortxNet(mcfg, pretrained_backbone=pretrained and not cfg.init_weights)
+    if cfg.init_weights:
+        start_from_weights(net, cfg.resolve(cfg.init_weights))
     return net, mcfg
+
+
+def start_from_weights(net: nn.Module, path: Path) -> None:
+    """Load `path` (safetensors) into `net`; its sidecar config must describe the same network."""
+    from dataclasses import asdict
+
+    from safetensors.torch import load_file
+
+    from ..model.weights import load_state_into, read_config
+
+    if not Path(path).is_file():
+        raise VortxError(f"init_weights: {path} does not exist; give the weights.safetensors of an earlier run")
+    theirs, ours = asdict(read_config(path)), asdict(net.config)
+    # The pooling and the photo size are set per run and phase, not by the weights.
+    differ = sorted(k for k in ours if k not in ("image_long_side", "use_proj_occ") and theirs.get(k) != ours[k])
+    if differ:
+        raise VortxError(f"init_weights: {path} was trained with another model ({', '.join(differ)} differ); "
+                         "use the same `model` block as that run")
+    state = {k: v.float() if v.is_floating_point() else v for k, v in load_file(str(path)).items()}
+    load_state_into(net, state, str(path))
 
 
 def set_pooling(net: nn.Module, use_proj_occ: bool) -> None:

@@ -14,7 +14,7 @@ import torch
 from engine.model.config import StereoEvidenceConfig, VortxConfig
 from engine.model.outputs import VortxBatch, tsdf_from_logits
 from engine.model.outputs import StereoEvidence
-from engine.model.stereo_evidence import FineFusion, fused_tsdf, view_evidence
+from engine.model.stereo_evidence import MAX_ADDED_BLOCK_SHARE, FineFusion, cap_added_blocks, fused_tsdf, view_evidence
 from engine.model.vortx import VortxNet
 from engine.stereo import DepthMap, fuse_depth_maps
 from engine.stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
@@ -205,3 +205,22 @@ def test_blocks_with_surface_and_coverage_against_brute_force(offset):
             expected_cover = any(all(0 <= c[a] < tsdf.shape[a] for a in range(3)) for c in local)
             assert value == (0.0 if expected_surface else 1.0), (scale, block)
             assert cover == expected_cover, (scale, block)
+
+
+def test_blocks_added_beyond_the_classical_ones_are_capped_most_confident_first():
+    """A level's kept blocks: every classical block it keeps, plus the added ones in the order of a loop
+    over them sorted by logit, until MAX_ADDED_BLOCK_SHARE of the classical count is reached."""
+    rng = np.random.default_rng(3)
+    n = 400
+    start = torch.from_numpy(np.where(rng.random(n) < 0.3, 5.0, -0.005)).float()
+    logits = torch.from_numpy(rng.normal(0, 2, n)).float()
+    keep = logits > 0
+    got = cap_added_blocks(keep, logits, start).numpy()
+
+    classical_kept = [i for i in range(n) if keep[i] and start[i] > 0]
+    added = sorted((i for i in range(n) if keep[i] and start[i] <= 0), key=lambda i: -float(logits[i]))
+    budget = int(MAX_ADDED_BLOCK_SHARE * len(classical_kept))
+    assert len(added) > budget  # the cap bites in this case
+    assert sorted(np.flatnonzero(got)) == sorted(classical_kept + added[:budget])
+    few = keep & ((start > 0) | (logits > float(logits[added[budget // 2]])))  # under the budget: unchanged
+    assert torch.equal(cap_added_blocks(few, logits, start), few)

@@ -136,3 +136,24 @@ def test_config_files_parse_and_export(tmp_path, room):
     from engine.model.weights import read_config
 
     assert read_config(out).feature_channels == (8, 8, 8)
+
+
+def test_a_run_starts_from_an_earlier_runs_weights(tmp_path, room):
+    """init_weights: the new run's network is the exported one, parameter for parameter; weights of
+    another model are refused with a message naming the setting."""
+    first = _trainer(_cfg(tmp_path / "a", phase2={"steps": 0}), room)
+    first.run(2)
+    exported = first.export_weights(tmp_path / "w.safetensors")
+    second = _trainer(_cfg(tmp_path / "b", init_weights=str(exported)), room)
+    theirs, ours = first.net.state_dict(), second.net.state_dict()
+    assert all(torch.equal(theirs[k], ours[k]) for k in ours)
+    assert any(not torch.equal(theirs[k], v) for k, v in _trainer(_cfg(tmp_path / "c"), room).net.state_dict().items()
+               if v.is_floating_point())
+
+    other = dict(TINY_MODEL, feature_channels=[8, 8, 16])
+    from engine.errors import VortxError
+
+    with pytest.raises(VortxError, match="init_weights: .* another model .*feature_channels"):
+        _trainer(_cfg(tmp_path / "d", model=other, init_weights=str(exported)), room)
+    with pytest.raises(VortxError, match="init_weights: .*missing.safetensors does not exist"):
+        _trainer(_cfg(tmp_path / "e", init_weights=str(tmp_path / "missing.safetensors")), room)
