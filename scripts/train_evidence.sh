@@ -50,6 +50,9 @@ $PY -m engine.train.room_stereo $B/truepose $B/clean --shard 1/2 &
 wait
 if [ -f $B/runs/vortx_evidence_mix/checkpoint.pt ]; then RESUME=--resume; else RESUME=; fi
 $PY -m engine train configs/train_evidence_mix.json --no-progress $RESUME
+#    The posed variant (configs/train_evidence_posed.json: the true-pose and clean rooms only) ran beside it
+#    and is the one kept in weights/experimental (MODEL.md compares both):
+#    $PY -m engine train configs/train_evidence_posed.json --no-progress
 
 # 5. Held-out comparison: the realistic development rooms (`make devrooms`), learned vs classical vs box.
 EVAL="--image-size 128 --views 12 --frustum-depth 3.0 --max-room-size 7 7 3.5"
