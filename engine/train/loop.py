@@ -73,8 +73,7 @@ def start_from_weights(net: nn.Module, path: Path) -> None:
     if differ:
         raise VortxError(f"init_weights: {path} was trained with another model ({', '.join(differ)} differ); "
                          "use the same `model` block as that run")
-    state = {k: v.float() if v.is_floating_point() else v for k, v in load_file(str(path)).items()}
-    load_state_into(net, state, str(path))
+    load_state_into(net, load_file(str(path)), str(path))  # float16 files load into the float32 network
 
 
 def set_pooling(net: nn.Module, use_proj_occ: bool) -> None:
