@@ -13,7 +13,7 @@ from dataclasses import MISSING, Field, asdict, dataclass, field, fields
 from typing import Any, Optional
 
 from ..errors import VortxError
-from ..stereo.options import StereoOptions  # the stereo defaults live with the stereo code
+from ..stereo.options import STEREO_MATCHERS, StereoOptions  # the stereo defaults live with the stereo code
 from ..texture.options import TEXTURE_SIZES, TextureOptions  # and the texture bake's with the bake
 
 # Each level is twice as coarse as the next: coarse / medium / fine = 4x / 2x / 1x the finest voxel.
@@ -133,7 +133,15 @@ class ReconSettings:
         40, "keyframes (evenly spaced) that colour the mesh vertices; 0 leaves the mesh grey",
         (CLI, BLENDER), min=0, max=1000, label="Colour Views")
 
-    # Plane-sweep stereo (engine/stereo), the 'stereo' method's depth maps.
+    # Multi-view stereo (engine/stereo), the 'stereo' method's depth maps.
+    stereo_matcher: str = setting(
+        StereoOptions.matcher, "how depth maps are matched: 'patchmatch' = a depth and a slanted plane per pixel "
+        "(PatchMatch with per-pixel view selection and geometric consistency: right on slanted floors and walls, "
+        "slower); 'fast' = fronto-parallel plane sweep (about 0.5 s per keyframe, crumpled surfaces)",
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), choices=STEREO_MATCHERS, flag="--stereo",
+        label="Matcher", choice_help=(
+            "Per-pixel slanted planes with view selection and geometric consistency: smooth walls and floors",
+            "Fronto-parallel plane sweep: several times faster, crumpled surfaces"))
     stereo_image_size: int = setting(
         StereoOptions.long_side, "long side in pixels of the photos matched by stereo (larger: finer depth, ~4x the time per 2x)",
         (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=32, max=2048, label="Stereo Image Size")

@@ -34,7 +34,7 @@ MIN_OBSERVATIONS = 1  # depth maps that must have updated a voxel before it can 
 def stereo_options(settings: ReconSettings, device: torch.device) -> StereoOptions:
     """The stereo knobs of a reconstruction's settings (the depth range reaches past the frustum depth
     that bounds the scene, so a wall at the far side still has a plane behind it)."""
-    return StereoOptions(long_side=settings.stereo_image_size, planes=settings.stereo_planes,
+    return StereoOptions(matcher=settings.stereo_matcher, long_side=settings.stereo_image_size, planes=settings.stereo_planes,
                          sources=settings.stereo_sources,
                          best_k=max(1, settings.stereo_sources // 2), min_ncc=settings.stereo_min_ncc,
                          max_references=settings.stereo_views, consistency_views=settings.stereo_consistency,

@@ -9,8 +9,14 @@ from dataclasses import dataclass
 from ..errors import VortxError
 
 
+MATCHER_PATCHMATCH = "patchmatch"  # per-pixel slanted planes (patchmatch.py)
+MATCHER_FAST = "fast"  # fronto-parallel plane sweep (sweep.py)
+STEREO_MATCHERS = (MATCHER_PATCHMATCH, MATCHER_FAST)
+
+
 @dataclass(frozen=True)
 class StereoOptions:
+    matcher: str = MATCHER_FAST  # STEREO_MATCHERS
     long_side: int = 200  # stereo image long side in pixels, independent of the network's image size
     planes: int = 80  # depth hypotheses of the sweep, uniform in inverse depth
     refine_planes: int = 8  # hypotheses of each per-pixel refinement sweep over +-1 step of the previous (0 = off)
@@ -32,6 +38,8 @@ class StereoOptions:
 
     def validate(self) -> None:
         """Raise VortxError naming the setting at fault."""
+        if self.matcher not in STEREO_MATCHERS:
+            raise VortxError(f"stereo matcher must be one of {', '.join(STEREO_MATCHERS)}, got {self.matcher!r}")
         if self.long_side < 32:
             raise VortxError(f"stereo long side must be at least 32 pixels, got {self.long_side}")
         if self.planes < 3:
