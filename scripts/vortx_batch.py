@@ -6,7 +6,8 @@
     .venv/bin/python scripts/vortx_batch.py FOLDER_OF_CAPTURES --out OUT_FOLDER
 
 Runs the extension's own operators, exactly as a user would click them: Import Capture, Estimate
-Poses (only when no frame has a pose), Refine Poses (with --refine-poses), Reconstruct, Bake Texture
+Poses (only when no frame has a pose), Refine Poses (with --refine-poses), Reconstruct (at --quality
+preview|standard|high, the presets of Blender's Reconstruction panel; explicit flags win), Bake Texture
 (with --vr: the VR preset, a mesh decimated to --face-budget with a --texture-size photo texture);
 then saves the .blend and, with --export, writes the mesh as GLB, PLY or OBJ (metres, Z up for
 PLY/OBJ; glTF is Y-up by specification and converts back on import; with --vr, GLB/glTF and OBJ carry
@@ -60,8 +61,10 @@ from _extension_dev import ExtensionLoadError, enable, find_extension, mount_che
 # torch), the one source the CLI and the Blender properties share.
 sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
 from engine.poses.camera_height import DEFAULT_CAMERA_HEIGHT_M  # noqa: E402
+from engine.recon.presets import (add_quality_argument, quality_of, refuse_unused_quality,  # noqa: E402
+                                  settings_from_quality_arguments)
 from engine.recon.settings import (ReconSettings, add_setting_arguments, given_settings,  # noqa: E402
-                                   refuse_ignored_settings, refuse_untextured_settings, settings_from_arguments)
+                                   refuse_ignored_settings, refuse_untextured_settings)
 
 EXPORT_SUFFIXES = (".glb", ".gltf", ".ply", ".obj")
 REPORT_SUFFIX = ".report.json"
@@ -91,6 +94,7 @@ def argument_parser() -> argparse.ArgumentParser:
                         help="the .blend file to write (one capture), or the folder for NAME.blend and NAME.report.json")
     parser.add_argument("--export", type=Path,
                         help="also write the mesh: .glb/.gltf (VR), .ply or .obj; with an --out folder, only the suffix counts")
+    add_quality_argument(parser)  # --quality preview|standard|high, as `engine reconstruct` (engine/recon/presets.py)
     add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="camera height above the floor in metres; scales poses that are not metric (default %(default)s)")
@@ -123,10 +127,11 @@ def parse_arguments(args: Sequence[str]) -> argparse.Namespace:
         if suffix not in EXPORT_SUFFIXES:
             parser.error(f"--export {args.export}: use a {', '.join(EXPORT_SUFFIXES)} file name")
         args.export_suffix = suffix
-    args.settings = settings_from_arguments(args)
+    args.settings = settings_from_quality_arguments(args)  # the preset under the explicit flags
     try:
         args.settings.validate()
         refuse_ignored_settings(args.settings, given_settings(args))  # no flag is silently ignored
+        refuse_unused_quality(args.settings, args.quality, given_settings(args))  # nor a preset
         refuse_untextured_settings(given_settings(args), bool(args.vr), "--vr")
     except Exception as error:  # engine.errors.VortxError of this checkout's engine
         parser.error(str(error))
@@ -162,6 +167,7 @@ class CaptureReport:
     timings_s: dict[str, float] = field(default_factory=dict)  # per step, and total
     warnings: list[str] = field(default_factory=list)
     settings: dict[str, Any] = field(default_factory=dict)
+    quality: Optional[str] = None  # the preset the settings match (--quality, changed by explicit flags: "custom")
 
     def warn(self, messages: Sequence[str]) -> None:
         self.warnings += [m for m in messages if m not in self.warnings]
@@ -465,7 +471,8 @@ def run_all(args: argparse.Namespace, addon: Optional[ModuleType], jobs: list[Ca
     for number, job in enumerate(jobs, start=1):
         if len(jobs) > 1:
             print(f"vortx capture {number}/{len(jobs)}: {job.capture}", flush=True)
-        report = CaptureReport(capture=str(job.capture.absolute()), settings=asdict(args.settings))
+        report = CaptureReport(capture=str(job.capture.absolute()), settings=asdict(args.settings),
+                               quality=quality_of(args.settings) or "custom")
         started = time.perf_counter()
         try:
             if load_error is not None:
@@ -509,7 +516,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                 from vortx_batch_ray import run_on_ray  # imports ray; nothing else needs it
 
                 return run_on_ray(args, argument_parser(), plan_jobs(args, captures), addon.engine,
-                                  lambda job: CaptureReport(capture=str(job.capture.absolute()), settings=asdict(args.settings)),
+                                  lambda job: CaptureReport(capture=str(job.capture.absolute()), settings=asdict(args.settings),
+                                                            quality=quality_of(args.settings) or "custom"),
                                   Path(__file__), bpy.app.binary_path)
             return run_all(args, addon, plan_jobs(args, captures))
     except ExtensionLoadError as error:

@@ -25,8 +25,9 @@ from ..jobs import TqdmProgress
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import SFM_IF_UNPOSED, PreparedCapture, prepare_capture
 from .output_frame import FRAME_CAPTURE, FRAME_WORLD, frame_record, moved_mesh, world_to_output
+from .presets import add_quality_argument, quality_of, refuse_unused_quality, settings_from_quality_arguments
 from .settings import (ReconSettings, add_setting_arguments, given_settings, refuse_ignored_settings,
-                       refuse_untextured_settings, settings_from_arguments)
+                       refuse_untextured_settings)
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb")  # .glb and .obj are textured (engine/texture), .ply has vertex colours
 
@@ -37,6 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output mesh: .ply (every face, vertex colours, confidence layer), or a textured VR-ready "
                              "result: .glb (one file, texture embedded) or .obj (+ .mtl + _texture.png), decimated to "
                              "--face-budget, with the .ply beside it; a .json sidecar is written beside it")
+    add_quality_argument(parser)  # --quality preview|standard|high (engine/recon/presets.py)
     add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI (--frame among them)
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="metres above the floor, for the scale of captures whose poses are not metric "
@@ -48,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def settings_from_args(args: argparse.Namespace) -> ReconSettings:
-    return settings_from_arguments(args)
+    """The flags' settings with the --quality preset under them (explicit flags win)."""
+    return settings_from_quality_arguments(args)
 
 
 def write_mesh(path: Path, mesh: Any) -> None:
@@ -78,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
     settings = settings_from_args(args)
     settings.validate()
     refuse_ignored_settings(settings, given_settings(args))  # before the capture loads: an early, clear error
+    refuse_unused_quality(settings, args.quality, given_settings(args))
     refuse_untextured_settings(given_settings(args), out.suffix.lower() != ".ply", "--out room.glb or room.obj")
 
     from ..capture import load_capture
@@ -136,6 +140,7 @@ def run(args: argparse.Namespace) -> int:
         # The mesh's frame and the similarities capture <-> world <-> output; bounds and grid below are in the world.
         "frame": frame_record(prepared, settings.frame),
         "output": str(out.resolve()),
+        "quality": quality_of(settings) or "custom",  # the preset the settings match (flags can change it)
         "files": [str(p.resolve()) for p in written],
         **result.stats,
         "tile_details": [t.to_dict() for t in result.tiles],

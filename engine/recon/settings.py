@@ -144,10 +144,10 @@ class ReconSettings:
             "Fronto-parallel plane sweep: several times faster, crumpled surfaces"))
     stereo_image_size: int = setting(
         StereoOptions.long_side, "long side in pixels of the photos matched by stereo (larger: finer depth, ~4x the time per 2x)",
-        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=32, max=2048, label="Stereo Image Size")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=32, max=2048, label="Image Size")
     stereo_views: int = setting(
         StereoOptions.max_references, "keyframes that get a stereo depth map (evenly spaced when there are more)",
-        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=1, max=2000, label="Stereo Views")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=1, max=2000, label="Views")
     stereo_planes: int = setting(
         StereoOptions.planes, "depth hypotheses per pixel, uniform in inverse depth (a finer second sweep refines each pixel)",
         (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=8, max=512, label="Depth Planes")
@@ -156,11 +156,11 @@ class ReconSettings:
         (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=1, max=16, label="Source Views")
     stereo_min_ncc: float = setting(
         StereoOptions.min_ncc, "minimum matching score (normalised cross-correlation) for a depth to be kept",
-        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=-1.0, max=0.99, flag="--stereo-min-ncc", label="Min Match Score")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=-1.0, max=0.99, flag="--stereo-min-ncc", label="Min Score")
     stereo_consistency: int = setting(
         StereoOptions.consistency_views, "keep a depth only if this many other depth maps agree within 2 percent (0 = off; fusion already "
         "filters most outliers, and a strict check loses more surface than noise)",
-        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=0, max=10, label="Consistency Views")
+        (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=0, max=10, label="Consistency")
 
     # The textured result (engine/texture): GLB / OBJ files, Blender's Bake Texture, the VR preset.
     texture_size: int = setting(
