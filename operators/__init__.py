@@ -2,9 +2,9 @@
 
 import bpy
 
-from . import capture, reconstruct, texture
+from . import capture, explain, reconstruct, texture
 
-classes: tuple = (*capture.classes, *reconstruct.classes, *texture.classes)
+classes: tuple = (*capture.classes, *explain.classes, *reconstruct.classes, *texture.classes)
 
 
 def register() -> None:

@@ -23,7 +23,7 @@ from ..vortx_blender.job_operator import JobOperatorMixin
 from ..vortx_blender.jobs import JobFunction
 from ..vortx_blender.point_cloud import apply_point_cloud, checked_points, find_point_cloud
 from ..vortx_blender.poses import PosedCapture, PoseSettings, RefinedPoses, estimate_poses_job, refine_poses_job
-from ..vortx_blender.properties import recon_field, recon_property
+from ..vortx_blender.properties import POSES_REFINED, recon_field, recon_property
 from ..vortx_blender.scale import picked_points, set_scale
 
 # Files a capture can be chosen by; a folder is chosen by accepting the browser with no file selected.
@@ -119,7 +119,9 @@ class VORTX_OT_estimate_poses(JobOperatorMixin, bpy.types.Operator):
         remember_loaded_capture(scene, result.capture_path, result.loaded)
         if result.report:
             print(result.report)  # the full SfM report (per-image registration, errors) for the console
-        _report_applied(self, f"Estimated poses: {applied.message(result.capture)}", result.warnings + applied.warnings)
+        # The scale's derivation, which the Capture panel shortens to one line, goes into the report.
+        _report_applied(self, f"Estimated poses: {applied.message(result.capture)}; {result.prepared.description}",
+                        result.warnings + applied.warnings)
         return {"FINISHED"}
 
 
@@ -161,6 +163,7 @@ class VORTX_OT_refine_poses(JobOperatorMixin, bpy.types.Operator):
         settings = scene.vortx
         if "refined" not in settings.pose_status:
             settings.pose_status = f"{settings.pose_status}, refined"
+        settings.pose_source = POSES_REFINED
         print(refined.report)
         _report_applied(self, result.summary(), result.frame_warnings() + list(refined.warnings))
         return {"FINISHED"}

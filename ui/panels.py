@@ -1,112 +1,123 @@
 """The "VoRTX" tab of the 3D View sidebar (N panel). Drawing only.
 
+Laid out as Blender's own panels: settings in `use_property_split` columns under short labels (the
+property's description is the tooltip); status as one line each, a warning as one line with an icon
+whose whole text is its tooltip (the `vortx.explain` operator drawn as a label) and the operator's
+report; details and raw knobs in sub-panels closed by default. Every text fits the default sidebar
+(ui/sidebar.py has the measured widths; tests/ui/test_label_widths.py checks each panel).
+
 Each panel's draw() forwards to a `draw_*(layout, settings, ...)` function so tests can drive the
 layout code with a recording stand-in for UILayout (there is no region to draw into headless).
 """
 
 from __future__ import annotations
 
-import textwrap
 from typing import Any, Optional
 
 import bpy
 
-from ..engine.texture.options import MOBILE_TEXTURE_SIZE, TextureOptions
+from ..engine.poses.scale import SOURCE_FLOOR, SOURCE_FLOOR_AND_CEILING, SOURCE_GUESS
+from ..engine.recon.presets import preset
+from ..engine.texture.options import TextureOptions
 from ..vortx_blender import jobs
 from ..vortx_blender import result as results
 from ..vortx_blender.frame import capture_frame_note
 from ..vortx_blender.jobs import Job
-from ..vortx_blender.properties import recon_property_names
+from ..engine.recon.settings import BLENDER, setting_fields
+from ..vortx_blender.properties import CUSTOM_QUALITY, POSES_BY_SFM, blender_name, recon_property_names
 from ..vortx_blender.texture import bake_summary
+from . import sidebar
 
 CATEGORY = "VoRTX"
 # Jobs whose progress the Reconstruction and Result panels show; the Capture panel shows the others.
 RECONSTRUCTION_JOBS = ("Reconstruct", "Preview Tiles")
 RESULT_JOBS = ("Bake Texture",)
-# What the Result panel says about the texture settings: the VR preset's defaults (engine/texture/options.py).
-VR_PRESET_TEXT = (f"VR preset: {TextureOptions.face_budget // 1000}k faces, {TextureOptions.texture_size} px "
-                  f"({MOBILE_TEXTURE_SIZE} px for mobile headsets)")
+# The Result panel's line about the bake's defaults (engine/texture/options.py); Texture Size's tooltip
+# says what mobile headsets want.
+VR_PRESET_TEXT = f"VR preset: {TextureOptions.face_budget // 1000}k faces, {TextureOptions.texture_size} px"
+
+# The Scale line's words for where the scale came from (scene.vortx.scale_source).
+SCALE_WORDS = {
+    SOURCE_FLOOR: "from the floor",
+    SOURCE_FLOOR_AND_CEILING: "floor and ceiling",
+    "camera height": "camera height",
+    "known distance": "known distance",
+    "metric capture": "from the capture",
+}
+SET_SCALE_ADVICE = "Select two cameras or points a known distance apart and use Set Scale"
 
 
-# Blender cuts a label that does not fit with "..." in its middle, so long text is wrapped to the
-# sidebar's width. Measured in the real window (Blender 4.3, UI scale 1, sidebar 291 px): 36-38
-# characters of panel text fit beside an icon inside a box (about 6 px a character and 70 px of tab
-# strip, box and icon margins).
-CHAR_PX = 6.0
-MARGIN_PX = 70
-WRAP_CHARS = 36  # the default sidebar's width, and what a draw without a region (tests, scripts) uses
-MIN_WRAP_CHARS = 16
-
-
-def wrap_chars(context: Any) -> int:
-    """Characters of panel text that fit on one line of the sidebar `context` draws into."""
-    region = getattr(context, "region", None)
-    width = getattr(region, "width", 0) or 0
-    if width <= MARGIN_PX:  # no region (headless) or collapsed
-        return WRAP_CHARS
-    scale = bpy.context.preferences.system.ui_scale or 1.0  # the resolution scale times the display's DPI
-    return max(MIN_WRAP_CHARS, int((width / scale - MARGIN_PX) / CHAR_PX))
-
-
-def _value_row(layout: Any, label: str, value: str, chars: int = WRAP_CHARS) -> None:
-    # Summary values are written by the operators; showing them as labels (not editable fields)
-    # keeps users from typing a frame count that no longer matches the cameras.
-    if len(value) > int(0.6 * chars):  # e.g. "36 of 36 posed by SfM, scaled by the ...": whole, under its label
-        layout.label(text=f"{label}:")
-        for line in textwrap.wrap(value, chars):
-            layout.label(text=line, icon="BLANK1")
+def status_line(layout: Any, text: str, icon: str = "NONE", tooltip: str = "", warning: bool = False) -> None:
+    """One status line: a label, or, when it stands for a longer text, the `vortx.explain` operator drawn
+    as a label (hovering shows `tooltip`, clicking reports it)."""
+    if not tooltip:
+        layout.label(text=text, icon=icon)
         return
     row = layout.row()
-    split = row.split(factor=0.4)
-    split.label(text=label)
-    split.label(text=value)
+    row.alignment = "LEFT"
+    explain = row.operator("vortx.explain", text=text, icon=icon, emboss=False)
+    explain.text = tooltip
+    explain.level = "WARNING" if warning else "INFO"
 
 
-def scale_text(settings: Any) -> str:
-    """The scale row: metres or not, what set it, and its uncertainty when it was estimated."""
-    units = "metres" if settings.poses_metric else "arbitrary"
-    if not settings.scale_source:
-        return units
-    sigma = f", +-{100 * settings.scale_uncertainty:.0f} %" if settings.scale_uncertainty > 0 else ""
-    return f"{units} ({settings.scale_source}{sigma})"
+def paragraph(layout: Any, text: str, width_px: float, icon: str = "NONE") -> None:
+    """`text` wrapped to a panel `width_px` wide (Blender's text width), `icon` before its first line."""
+    for index, line in enumerate(sidebar.wrap(text, sidebar.line_px(width_px, icon=icon != "NONE"))):
+        layout.label(text=line, icon=icon if index == 0 else ("BLANK1" if icon != "NONE" else "NONE"))
 
 
-def _wrapped(layout: Any, text: str, icon: str, chars: int = WRAP_CHARS) -> None:
-    lines = textwrap.wrap(text, chars) or [""]
-    for index, line in enumerate(lines):
-        layout.label(text=line, icon=icon if index == 0 else "BLANK1")
+def poses_line(settings: Any) -> str:
+    """"Poses: 36 of 36, by SfM"; "Poses: none (Estimate Poses)"."""
+    if not settings.posed_frame_count:
+        return "Poses: none (Estimate Poses)"
+    source = settings.pose_source or "given"
+    return f"Poses: {settings.posed_frame_count} of {settings.frame_count}, {'by SfM' if source == POSES_BY_SFM else source}"
 
 
-def draw_capture(layout: Any, settings: Any, job: Optional[Job], chars: int = WRAP_CHARS) -> None:
+def scale_line(settings: Any) -> tuple[str, bool]:
+    """The Scale line ("Scale: metric, +-12 %, from the floor") and whether it is a warning (a guess)."""
+    source = settings.scale_source
+    if source == SOURCE_GUESS:
+        return "Scale: guessed, no floor seen", True
+    if source in ("unknown", ""):
+        return "Scale: unknown", True
+    parts = ["metric" if settings.poses_metric else "not metric"]
+    if settings.scale_uncertainty > 0:
+        parts.append(f"+-{100 * settings.scale_uncertainty:.0f} %")
+    parts.append(SCALE_WORDS.get(source, source))
+    return "Scale: " + ", ".join(parts), False
+
+
+def draw_capture(layout: Any, settings: Any, job: Optional[Job], width_px: float = sidebar.CONTENT_PX) -> None:
     layout.operator("vortx.import_capture", icon="FILE_FOLDER")
     # The coordinates the capture is shown (and the result exported) in: an import option that also
-    # moves an imported capture at once. Greyed out, with the reason, when the capture has none of its own.
-    row = layout.row()
-    row.label(text="Coordinates")
+    # moves an imported capture at once. Greyed out when the capture has none of its own (the line
+    # under it says so, its tooltip why).
+    split = layout.column()
+    split.use_property_split = True
+    split.use_property_decorate = False
+    row = split.row()
     row.prop(settings, "output_frame", expand=True)
     note = capture_frame_note(settings)
     if note is not None:
         row.enabled = False
-        _wrapped(layout, f"No capture coordinates: {note}", "INFO", chars)
+        status_line(layout, "No capture coordinates", "INFO", f"No capture coordinates: {note}")
     if settings.capture_path:
         box = layout.box()
         col = box.column(align=True)
-        col.label(text=bpy.path.basename(settings.capture_path.rstrip("/\\")) or settings.capture_path, icon="IMAGE_DATA")
-        _value_row(col, "Format", settings.capture_format, chars)
-        _value_row(col, "Frames", str(settings.frame_count), chars)
-        _value_row(col, "Resolution", f"{settings.resolution_x} x {settings.resolution_y}", chars)
-        _value_row(col, "Poses", settings.pose_status, chars)
+        name = bpy.path.basename(settings.capture_path.rstrip("/\\")) or settings.capture_path
+        col.label(text=sidebar.shorten(name, sidebar.line_px(width_px, icon=True, boxed=True)), icon="IMAGE_DATA")
+        col.label(text=f"Frames: {settings.frame_count}, {settings.resolution_x} x {settings.resolution_y}")
+        status_line(col, poses_line(settings), tooltip=settings.pose_status)
         if settings.posed_frame_count:
-            _value_row(col, "Scale", scale_text(settings), chars)
-            if settings.scale_description:
-                # The description is long (floor plane found or not, the numbers): the tooltip-free
-                # panel shows it wrapped on its own lines, with a warning icon when it is a guess.
-                icon = "ERROR" if settings.scale_source in ("unknown", "") or "no floor" in settings.scale_description else "INFO"
-                _wrapped(col, settings.scale_description, icon, chars)
+            text, guessed = scale_line(settings)
+            tooltip = settings.scale_description + (f". {SET_SCALE_ADVICE}" if guessed else "")
+            status_line(col, text, "ERROR" if guessed else "NONE", tooltip, warning=guessed)
             if settings.pose_check:  # the given poses look off against the photos: Refine Poses below
-                _wrapped(col, settings.pose_check, "ERROR", chars)
+                status_line(col, "Poses look off: Refine Poses", "ERROR", settings.pose_check, warning=True)
         if settings.skipped_count:
-            _wrapped(col, f"{settings.skipped_count} photo(s) skipped: {settings.skipped_names}", "ERROR", chars)
+            status_line(col, f"{settings.skipped_count} photo{'s' if settings.skipped_count > 1 else ''} skipped", "ERROR",
+                        f"Skipped: {settings.skipped_names} (the import report says why)", warning=True)
     else:
         layout.label(text="No capture imported", icon="INFO")
     row = layout.row(align=True)
@@ -117,17 +128,43 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job], chars: int = WR
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
 
 
-def draw_pose_settings(layout: Any, settings: Any) -> None:
-    layout.use_property_split = True
-    layout.use_property_decorate = False
-    layout.prop(settings, "sfm_matcher")
-    layout.prop(settings, "sfm_max_image_side")
-    layout.prop(settings, "camera_height")
+def draw_capture_details(layout: Any, settings: Any, width_px: float = sidebar.CONTENT_PX) -> None:
+    """The Capture panel's lines in full: format, where the poses come from, how the scale was found,
+    the pose check, the skipped photos, why there are no capture coordinates."""
+    col = layout.column(align=True)
+    col.label(text=f"Format: {settings.capture_format}")
+    col.label(text=f"Resolution: {settings.resolution_x} x {settings.resolution_y}")
+    paragraph(col, f"Poses: {settings.pose_status}", width_px)
+    if settings.posed_frame_count and settings.scale_description:
+        _, guessed = scale_line(settings)
+        paragraph(col, f"Scale: {settings.scale_description}", width_px, "ERROR" if guessed else "NONE")
+    if settings.pose_check:
+        paragraph(col, settings.pose_check, width_px, "ERROR")
+    if settings.skipped_count:
+        paragraph(col, f"{settings.skipped_count} skipped: {settings.skipped_names}", width_px, "ERROR")
+    note = capture_frame_note(settings)
+    if note is not None:
+        paragraph(col, f"No capture coordinates: {note}", width_px, "INFO")
 
 
 def _settings_layout(layout: Any) -> None:
     layout.use_property_split = True
     layout.use_property_decorate = False
+
+
+def draw_pose_settings(layout: Any, settings: Any) -> None:
+    _settings_layout(layout)
+    layout.prop(settings, "sfm_matcher")
+    layout.prop(settings, "sfm_max_image_side")
+    layout.prop(settings, "camera_height")
+
+
+def quality_hint(settings: Any) -> Optional[str]:
+    """The line under Quality: the chosen preset's measured time on the demo room (None for Custom)."""
+    if settings.quality == CUSTOM_QUALITY:
+        return None
+    chosen = preset(settings.quality.lower())
+    return f"{chosen.time_text()} (demo room)" if chosen.demo_seconds is not None else "Not measured yet"
 
 
 def draw_reconstruction(layout: Any, settings: Any, job: Optional[Job]) -> None:
@@ -136,11 +173,20 @@ def draw_reconstruction(layout: Any, settings: Any, job: Optional[Job]) -> None:
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
     _settings_layout(layout)
     layout.prop(settings, "method")
+    col = layout.column()
+    col.active = settings.method == "STEREO"  # the presets set the stereo settings
+    col.prop(settings, "quality")
+    hint = quality_hint(settings)
+    if hint is not None:
+        split = col.split(factor=sidebar.SPLIT_FACTOR)
+        split.label(text="")
+        split.label(text=hint, icon="TIME")
     layout.prop(settings, "voxel_size")
-    if settings.method == "VORTX":  # tiles and views are the network's; stereo fuses the whole scene at once
-        layout.prop(settings, "view_count")
-        layout.prop(settings, "tile_size")
     layout.prop(settings, "result_mode")
+
+
+# The VoRTX network's settings: the Model panel.
+MODEL_SETTINGS = ("view_count", "tile_size", "image_size")
 
 
 def draw_model_settings(layout: Any, settings: Any) -> None:
@@ -150,6 +196,8 @@ def draw_model_settings(layout: Any, settings: Any) -> None:
         layout.prop(settings, "weights_path")
     layout.prop(settings, "device")
     layout.prop(settings, "seed")
+    for name in MODEL_SETTINGS:
+        layout.prop(settings, name)
 
 
 def draw_tiles(layout: Any, settings: Any) -> None:
@@ -160,16 +208,15 @@ def draw_tiles(layout: Any, settings: Any) -> None:
     row.operator("vortx.bake_tiles", icon="MOD_WIREFRAME")
 
 
-def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = None, job: Optional[Job] = None,
-                         chars: int = WRAP_CHARS) -> None:
+def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = None, job: Optional[Job] = None) -> None:
     """`result`: the result object the observation toggle and Bake Texture act on (results.shown_result),
     or None; `job`: the running job (its progress is shown here when it is a bake)."""
     _settings_layout(layout)
     if result is not None:
         if results.has_observation(result.data):
-            layout.prop(result, results.SHOW_OBSERVATION, icon="HIDE_OFF")
+            layout.prop(result, results.SHOW_OBSERVATION)
         else:
-            layout.label(text="No observation data on this result", icon="INFO")
+            layout.label(text="No observation layer", icon="INFO")
     col = layout.column(align=True)
     col.prop(settings, "min_piece_faces")
     col.prop(settings, "min_piece_fraction")
@@ -180,9 +227,9 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
 
     layout.separator()
     col = layout.column(align=True)
-    col.prop(settings, "texture_size")
-    col.prop(settings, "face_budget")
-    _wrapped(layout, VR_PRESET_TEXT, "INFO", chars)
+    for name in textured_property_names():  # texture size, face budget, ...: what Bake Texture reads
+        col.prop(settings, name)
+    layout.label(text=VR_PRESET_TEXT, icon="INFO")
     layout.operator("vortx.bake_texture", icon="TEXTURE")
     if job is not None and job.title in RESULT_JOBS:
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
@@ -191,11 +238,17 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
         layout.label(text=f"Textured: {baked['texture_size']} px, {baked['stats'].get('faces', '?')} faces", icon="CHECKMARK")
 
 
+def textured_property_names() -> list[str]:
+    """The scene properties of the settings only a textured result reads (setting(textured=True)), in
+    declaration order: the Result panel's, beside Bake Texture."""
+    return [blender_name(f) for f in setting_fields(BLENDER) if f.metadata["textured"]]
+
+
 # Reconstruction settings laid out in the Reconstruction, Model and Result panels (the coordinates in the
-# Capture panel); the stereo method's settings (stereo_*) appear in the Stereo panel and every other
-# ReconSettings field offered to Blender under Advanced, each by itself in declaration order.
-DRAWN_ELSEWHERE = ("method", "voxel_size", "view_count", "tile_size", "device", "seed", "texture_size", "face_budget",
-                   "output_frame")
+# Capture panel, the textured result's beside Bake Texture); the stereo method's settings (stereo_*)
+# appear in Advanced > Stereo and every other ReconSettings field offered to Blender in Advanced, each by
+# itself in declaration order.
+DRAWN_ELSEWHERE = ("method", "voxel_size", *MODEL_SETTINGS, "device", "seed", "output_frame")
 STEREO_PREFIX = "stereo_"
 
 
@@ -209,7 +262,7 @@ def draw_stereo_settings(layout: Any, settings: Any) -> None:
 def draw_advanced_settings(layout: Any, settings: Any) -> None:
     _settings_layout(layout)
     for name in recon_property_names():
-        if name not in DRAWN_ELSEWHERE and not name.startswith(STEREO_PREFIX):
+        if name not in DRAWN_ELSEWHERE and not name.startswith(STEREO_PREFIX) and name not in textured_property_names():
             layout.prop(settings, name)
 
 
@@ -221,17 +274,32 @@ class VORTX_PT_capture(bpy.types.Panel):
     bl_category = CATEGORY
 
     def draw(self, context: bpy.types.Context) -> None:
-        draw_capture(self.layout, context.scene.vortx, jobs.active_job(), wrap_chars(context))
+        draw_capture(self.layout, context.scene.vortx, jobs.active_job(), sidebar.content_px(context))
 
 
-class VORTX_PT_pose_settings(bpy.types.Panel):
-    bl_idname = "VORTX_PT_pose_settings"
-    bl_label = "Pose Estimation"
+class _CaptureChild(bpy.types.Panel):
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = CATEGORY
     bl_parent_id = "VORTX_PT_capture"
     bl_options = {"DEFAULT_CLOSED"}
+
+
+class VORTX_PT_capture_details(_CaptureChild):
+    bl_idname = "VORTX_PT_capture_details"
+    bl_label = "Details"
+
+    @classmethod
+    def poll(cls, context: bpy.types.Context) -> bool:
+        return bool(context.scene.vortx.capture_path)
+
+    def draw(self, context: bpy.types.Context) -> None:
+        draw_capture_details(self.layout, context.scene.vortx, sidebar.content_px(context))
+
+
+class VORTX_PT_pose_settings(_CaptureChild):
+    bl_idname = "VORTX_PT_pose_settings"
+    bl_label = "Pose Estimation"
 
     def draw(self, context: bpy.types.Context) -> None:
         draw_pose_settings(self.layout, context.scene.vortx)
@@ -255,24 +323,6 @@ class _ReconstructionChild(bpy.types.Panel):
     bl_parent_id = "VORTX_PT_reconstruction"
 
 
-class VORTX_PT_model(_ReconstructionChild):
-    bl_idname = "VORTX_PT_model"
-    bl_label = "Model"
-    bl_options = {"DEFAULT_CLOSED"}
-
-    def draw(self, context: bpy.types.Context) -> None:
-        draw_model_settings(self.layout, context.scene.vortx)
-
-
-class VORTX_PT_stereo(_ReconstructionChild):
-    bl_idname = "VORTX_PT_stereo"
-    bl_label = "Stereo"
-    bl_options = {"DEFAULT_CLOSED"}
-
-    def draw(self, context: bpy.types.Context) -> None:
-        draw_stereo_settings(self.layout, context.scene.vortx)
-
-
 class VORTX_PT_tiles(_ReconstructionChild):
     bl_idname = "VORTX_PT_tiles"
     bl_label = "Tiles"
@@ -287,10 +337,21 @@ class VORTX_PT_result(_ReconstructionChild):
 
     def draw(self, context: bpy.types.Context) -> None:
         draw_result_settings(self.layout, context.scene.vortx, results.shown_result(context.scene, context.active_object),
-                             jobs.active_job(), wrap_chars(context))
+                             jobs.active_job())
+
+
+class VORTX_PT_model(_ReconstructionChild):
+    bl_idname = "VORTX_PT_model"
+    bl_label = "Model"
+    bl_options = {"DEFAULT_CLOSED"}
+
+    def draw(self, context: bpy.types.Context) -> None:
+        draw_model_settings(self.layout, context.scene.vortx)
 
 
 class VORTX_PT_advanced(_ReconstructionChild):
+    """The raw knobs under the Quality presets: closed by default."""
+
     bl_idname = "VORTX_PT_advanced"
     bl_label = "Advanced"
     bl_options = {"DEFAULT_CLOSED"}
@@ -299,13 +360,24 @@ class VORTX_PT_advanced(_ReconstructionChild):
         draw_advanced_settings(self.layout, context.scene.vortx)
 
 
+class VORTX_PT_stereo(_ReconstructionChild):
+    bl_idname = "VORTX_PT_stereo"
+    bl_label = "Stereo"
+    bl_parent_id = "VORTX_PT_advanced"
+
+    def draw(self, context: bpy.types.Context) -> None:
+        draw_stereo_settings(self.layout, context.scene.vortx)
+
+
+# Registration order is the drawing order of sibling panels.
 classes = (
     VORTX_PT_capture,
+    VORTX_PT_capture_details,
     VORTX_PT_pose_settings,
     VORTX_PT_reconstruction,
-    VORTX_PT_model,
-    VORTX_PT_stereo,
     VORTX_PT_tiles,
     VORTX_PT_result,
+    VORTX_PT_model,
     VORTX_PT_advanced,
+    VORTX_PT_stereo,
 )

@@ -26,7 +26,7 @@ from ..engine.recon.output_frame import FRAME_CAPTURE, FRAME_WORLD, NO_POSES_NO_
 from .cameras import apply_camera_plan, plan_capture_cameras
 from .jobs import JobFunction
 from .point_cloud import apply_point_cloud, checked_points
-from .properties import capture_summary, write_summary
+from .properties import POSES_BY_SFM, POSES_GIVEN, capture_summary, write_summary
 
 if TYPE_CHECKING:
     import bpy
@@ -63,13 +63,13 @@ def resolve_capture_path(filepath: str, directory: str = "") -> Optional[Path]:
 
 def apply_capture(scene: "bpy.types.Scene", capture: Capture, path: os.PathLike | str, pose_status: Optional[str] = None,
                   scale_source: str = "", scale_description: str = "", scale_uncertainty: float = 0.0,
-                  pose_check: str = "") -> CaptureApplied:
+                  pose_check: str = "", pose_source: str = POSES_GIVEN) -> CaptureApplied:
     """Replace the scene's capture summary, capture cameras and sparse points with `capture`'s.
 
     Raises CaptureError / PoseError (from validation) before changing anything.
     """
     summary = capture_summary(capture, str(path), pose_status, scale_source, scale_description, scale_uncertainty,
-                              pose_check)
+                              pose_check, pose_source)
     plan = plan_capture_cameras(capture)
     points, colours = checked_points(capture.points, capture.point_colors)
     cameras = apply_camera_plan(scene, plan)
@@ -86,7 +86,8 @@ def apply_prepared(scene: "bpy.types.Scene", prepared: PreparedCapture, path: os
                          scale_source=prepared.scale_source, scale_description=prepared.description,
                          scale_uncertainty=prepared.scale.relative_sigma if prepared.scale is not None else 0.0,
                          pose_check=prepared.pose_check.message if prepared.pose_check is not None
-                         and prepared.pose_check.poses_off else "")
+                         and prepared.pose_check.poses_off else "",
+                         pose_source=POSES_BY_SFM if prepared.ran_sfm else POSES_GIVEN)
 
 
 def scene_camera_height(settings: object) -> float:

@@ -24,6 +24,7 @@ from bpy.props import (
 
 # settings.py and camera_height.py are plain dataclasses and constants (no torch): safe to import here.
 from ..engine.poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
+from ..engine.recon.presets import PRESETS, QUALITY_FIELDS, preset_values, quality_of
 from ..engine.recon.settings import BLENDER, field_default, setting_fields, setting_label, tuple_length, value_type
 
 if TYPE_CHECKING:
@@ -108,6 +109,31 @@ def device_items(_self: object = None, _context: object = None) -> list[tuple[st
     return _device_items
 
 
+# Reconstruction > Quality: the presets of engine/recon/presets.py, and Custom when the settings they set
+# (Advanced) match none. Nothing is stored: reading it compares those settings with each preset, choosing
+# one writes its values into them (as Blender's own presets do), so a saved .blend keeps the values.
+CUSTOM_QUALITY = "CUSTOM"
+QUALITY_ITEMS = [(p.name.upper(), p.label, p.description(), number) for number, p in enumerate(PRESETS)] + [
+    (CUSTOM_QUALITY, "Custom", "The Advanced settings differ from every preset: choose a preset to set them", len(PRESETS))]
+
+
+def _get_quality(settings: "VortxSceneSettings") -> int:
+    from .reconstruct import scene_value
+
+    fields = {f.name: f for f in setting_fields(BLENDER)}
+    name = quality_of({key: scene_value(fields[key], getattr(settings, blender_name(fields[key]))) for key in QUALITY_FIELDS})
+    return next((number for number, p in enumerate(PRESETS) if p.name == name), len(PRESETS))
+
+
+def _set_quality(settings: "VortxSceneSettings", number: int) -> None:
+    if number >= len(PRESETS):  # Custom: the values stay as they are
+        return
+    from .reconstruct import write_scene_value
+
+    for key, value in preset_values(PRESETS[number].name).items():
+        write_scene_value(settings, recon_field(key), value)
+
+
 def _show_tiles_changed(settings: "VortxSceneSettings", _context: bpy.types.Context) -> None:
     from . import tile_overlay
 
@@ -132,6 +158,10 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
         description="Camera positions are in metres (from the capture format or scaled by the camera height)",
     )
     pose_status: StringProperty(name="Poses", description="Where the camera poses come from, or what is missing")
+    pose_source: StringProperty(
+        name="Pose Source",
+        description="Who made the camera poses, in a word: SfM (Estimate Poses), given (the capture's own), refined (Refine Poses)",
+    )
     scale_source: StringProperty(
         name="Scale Source",
         description="What set the size of the world: camera height (over the floor found), known distance (Set Scale), metric capture, unknown",
@@ -172,6 +202,14 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
     # ReconSettings.device; declared here because its items depend on the GPUs PyTorch sees. The other
     # ReconSettings fields offered to Blender are added below, from the fields (_add_recon_properties).
     device: EnumProperty(name="Device", description="Where the network runs", items=device_items, default=0)
+    quality: EnumProperty(
+        name="Quality",
+        description="A preset of the reconstruction's Advanced settings, with its measured time on the demo room; "
+                    "Custom when they were changed by hand",
+        items=QUALITY_ITEMS,
+        get=_get_quality,
+        set=_set_quality,
+    )
 
     # --- result (vortx.reconstruct, vortx.clean_result) ---
     result_mode: EnumProperty(name="Result", description="What a new reconstruction does with the previous one", items=RESULT_MODE_ITEMS, default="REPLACE")
@@ -288,8 +326,13 @@ _add_recon_properties(VortxSceneSettings)
 SKIPPED_NAMES_SHOWN = 3  # the panel names this many skipped photos; the report names all
 
 
+# What made the poses (scene.vortx.pose_source), as the Capture panel's Poses line says it.
+POSES_BY_SFM, POSES_GIVEN, POSES_REFINED = "SfM", "given", "refined"
+
+
 def capture_summary(capture: "Capture", path: str, pose_status: str | None = None, scale_source: str = "",
-                    scale_description: str = "", scale_uncertainty: float = 0.0, pose_check: str = "") -> dict[str, object]:
+                    scale_description: str = "", scale_uncertainty: float = 0.0, pose_check: str = "",
+                    pose_source: str = POSES_GIVEN) -> dict[str, object]:
     """The scene.vortx summary values describing `capture`, without touching Blender data.
 
     Computed before anything is written so that a failure in between cannot leave a half-updated
@@ -314,6 +357,7 @@ def capture_summary(capture: "Capture", path: str, pose_status: str | None = Non
         "resolution_y": int(height),
         "poses_metric": bool(capture.metric) and posed > 0,
         "pose_status": pose_status,
+        "pose_source": pose_source if posed else "",
         "scale_source": scale_source if posed else "",
         "scale_description": scale_description if posed else "",
         "scale_uncertainty": float(scale_uncertainty) if posed else 0.0,

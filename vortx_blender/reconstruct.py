@@ -138,16 +138,20 @@ def write_scene_settings(settings: Any, recon: ReconSettings) -> None:
     sees no GPU: the enum does not offer it).
     """
     for f in setting_fields(BLENDER):
-        value = getattr(recon, f.name)
-        kind = value_type(f)
-        if value is None:
-            value = f.metadata["unset"]
-        elif kind is str:
-            value = value.upper()
-        try:
-            setattr(settings, blender_name(f), value)
-        except (TypeError, ValueError) as error:
-            raise ValueError(f"{f.name} = {getattr(recon, f.name)!r}: {error}") from None
+        write_scene_value(settings, f, getattr(recon, f.name))
+
+
+def write_scene_value(settings: Any, f: "Field", value: Any) -> None:
+    """ReconSettings field `f`'s `value` -> its scene property (None -> the `unset` value, text -> the enum id)."""
+    shown = value
+    if value is None:
+        shown = f.metadata["unset"]
+    elif value_type(f) is str:
+        shown = value.upper()
+    try:
+        setattr(settings, blender_name(f), shown)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{f.name} = {value!r}: {error}") from None
 
 
 def scene_capture(scene: "bpy.types.Scene") -> Capture:

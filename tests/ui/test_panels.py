@@ -9,14 +9,17 @@ progress type) are valid, `prop` names a property of the data and `operator` a r
 from __future__ import annotations
 
 import threading
+from dataclasses import fields
 from types import SimpleNamespace
 
 import pytest
 
+from engine.recon.settings import ReconSettings
 from fixtures_blender_ui import RecordingLayout
 
-PANELS = ("VORTX_PT_capture", "VORTX_PT_pose_settings", "VORTX_PT_reconstruction", "VORTX_PT_model", "VORTX_PT_tiles",
-          "VORTX_PT_result", "VORTX_PT_advanced", "VORTX_PT_stereo")
+RECON_NAMES = {f.name for f in fields(ReconSettings)}
+PANELS = ("VORTX_PT_capture", "VORTX_PT_capture_details", "VORTX_PT_pose_settings", "VORTX_PT_reconstruction",
+          "VORTX_PT_model", "VORTX_PT_tiles", "VORTX_PT_result", "VORTX_PT_advanced", "VORTX_PT_stereo")
 
 
 def _draw(panel_name: str, context) -> list:
@@ -28,15 +31,38 @@ def _draw(panel_name: str, context) -> list:
     return calls
 
 
+def _lines(calls: list) -> list[dict]:
+    """What a user reads, in order: each label and each status line drawn as the explain operator, with
+    its icon and its tooltip (the explain operator's text; "" for a plain label)."""
+    lines = []
+    for name, bound in calls:
+        if name == "label":
+            lines.append({"text": bound.get("text") or "", "icon": bound.get("icon", "NONE"), "tooltip": ""})
+        elif name == "operator" and bound["operator"] == "vortx.explain":
+            assert bound.get("emboss") is False  # drawn as a label
+            lines.append({"text": bound["text"], "icon": bound.get("icon", "NONE"), "tooltip": bound["properties"]["text"]})
+    return lines
+
+
+def _line(calls: list, start: str) -> dict:
+    (line,) = [line for line in _lines(calls) if line["text"].startswith(start)]
+    return line
+
+
 def test_panels_registered_in_vortx_sidebar_tab(blender) -> None:
     import bpy
 
     for name in PANELS:
         cls = getattr(bpy.types, name)
         assert (cls.bl_space_type, cls.bl_region_type, cls.bl_category) == ("VIEW_3D", "UI", "VoRTX"), name
-    assert bpy.types.VORTX_PT_pose_settings.bl_parent_id == "VORTX_PT_capture"
+    for name in ("VORTX_PT_capture_details", "VORTX_PT_pose_settings"):
+        assert getattr(bpy.types, name).bl_parent_id == "VORTX_PT_capture"
     for name in ("VORTX_PT_model", "VORTX_PT_tiles", "VORTX_PT_result", "VORTX_PT_advanced"):
         assert getattr(bpy.types, name).bl_parent_id == "VORTX_PT_reconstruction", name
+    assert bpy.types.VORTX_PT_stereo.bl_parent_id == "VORTX_PT_advanced"
+    # Details and raw knobs are closed until the user opens them.
+    closed = {name for name in PANELS if "DEFAULT_CLOSED" in getattr(getattr(bpy.types, name), "bl_options", set())}
+    assert closed == {"VORTX_PT_capture_details", "VORTX_PT_pose_settings", "VORTX_PT_model", "VORTX_PT_advanced"}
 
 
 def test_capture_panel_before_and_after_import(blender, empty_scene) -> None:
@@ -51,39 +77,60 @@ def test_capture_panel_before_and_after_import(blender, empty_scene) -> None:
     settings.capture_path = "/captures/living-room/"
     settings.capture_format = "transforms"
     settings.frame_count, settings.resolution_x, settings.resolution_y = 60, 1920, 1080
+    texts = [line["text"] for line in _lines(_draw("VORTX_PT_capture", bpy.context))]
+    assert texts == ["living-room", "Frames: 60, 1920 x 1080", "Poses: none (Estimate Poses)"]
+
+    settings.posed_frame_count, settings.pose_source, settings.poses_metric = 60, "given", True
     settings.pose_status = "All 60 posed (transforms)"
-    texts = [c[1].get("text") for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
-    for expected in ("living-room", "transforms", "60", "1920 x 1080", "All 60 posed (transforms)"):
-        assert expected in texts, (expected, texts)
+    settings.scale_source = "metric capture"
+    calls = _draw("VORTX_PT_capture", bpy.context)
+    assert _line(calls, "Poses") == {"text": "Poses: 60 of 60, given", "icon": "NONE", "tooltip": "All 60 posed (transforms)"}
+    assert _line(calls, "Scale")["text"] == "Scale: metric, from the capture"
+    details = [line["text"] for line in _lines(_draw("VORTX_PT_capture_details", bpy.context))]
+    assert details[:3] == ["Format: transforms", "Resolution: 1920 x 1080", "Poses: All 60 posed (transforms)"]
 
 
-def test_capture_panel_shows_the_scale_source_and_skipped_photos(blender, empty_scene) -> None:
+def test_capture_panel_says_the_scale_in_one_line_and_warns_in_one_line(blender, empty_scene) -> None:
+    """One line each for frames, poses and scale; a warning is one line with an icon whose tooltip is
+    the whole text; the derivation is in the Details sub-panel, whole."""
     import bpy
 
     settings = empty_scene.vortx
     settings.capture_path = "/captures/kitchen/"
     settings.frame_count, settings.posed_frame_count, settings.poses_metric = 12, 12, False
+    settings.pose_source = "SfM"
     settings.scale_source = "unknown"
     settings.scale_description = "no floor found in the sparse points (no points below the cameras): scale unknown, SfM units kept"
     settings.skipped_count, settings.skipped_names = 2, "IMG_0003.jpg, IMG_0007.jpg"
-    labels = [c[1] for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
-    texts = [label.get("text") for label in labels]
-    assert "arbitrary (unknown)" in texts
-    shown = " ".join(t for t in texts if t)
-    assert "no floor found in the sparse points" in shown and "scale unknown" in shown
-    assert "2 photo(s) skipped: IMG_0003.jpg, IMG_0007.jpg" in shown
-    assert [label.get("icon") for label in labels if (label.get("text") or "").startswith(("no floor", "2 photo"))] == ["ERROR", "ERROR"]
+    calls = _draw("VORTX_PT_capture", bpy.context)
+    assert _line(calls, "Poses")["text"] == "Poses: 12 of 12, by SfM"
+    scale = _line(calls, "Scale")
+    assert (scale["text"], scale["icon"]) == ("Scale: unknown", "ERROR")
+    assert scale["tooltip"].startswith(settings.scale_description) and "Set Scale" in scale["tooltip"]
+    skipped = _line(calls, "2 photos")
+    assert (skipped["text"], skipped["icon"]) == ("2 photos skipped", "ERROR")
+    assert "IMG_0003.jpg, IMG_0007.jpg" in skipped["tooltip"]
+    # No line of the panel repeats the long description: it is in the tooltip and in Details.
+    assert not any("sparse points" in line["text"] for line in _lines(calls))
+    details = _lines(_draw("VORTX_PT_capture_details", bpy.context))
+    shown = " ".join(line["text"] for line in details)
+    assert f"Scale: {settings.scale_description}" in shown
+    assert "2 skipped: IMG_0003.jpg, IMG_0007.jpg" in shown
 
-    settings.poses_metric, settings.scale_source = True, "camera height"
-    settings.scale_description = "floor plane from 800 points (RANSAC inliers 60 %), median camera height 1.2 units -> scaled x1.25 to 1.5 m"
+    settings.poses_metric, settings.scale_source, settings.scale_uncertainty = True, "camera height over the floor", 0.12
+    settings.scale_description = "metric scale x0.993 +-12 % from the camera height over the floor (sparse points)"
     settings.skipped_count = 0
-    texts = [c[1].get("text") for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
-    assert "metres (camera height)" in texts
-    assert any(t and t.startswith("floor plane from 800 points") for t in texts)
-    assert not any(t and "skipped" in t for t in texts)
+    calls = _draw("VORTX_PT_capture", bpy.context)
+    scale = _line(calls, "Scale")
+    assert scale == {"text": "Scale: metric, +-12 %, from the floor", "icon": "NONE", "tooltip": settings.scale_description}
+    assert not any("skipped" in line["text"] for line in _lines(calls))
+
+    settings.scale_source = "camera height guess (no floor seen)"
+    scale = _line(_draw("VORTX_PT_capture", bpy.context), "Scale")
+    assert (scale["text"], scale["icon"]) == ("Scale: guessed, no floor seen", "ERROR")
 
 
-def test_capture_panel_shows_the_scale_uncertainty_and_poses_that_look_off(blender, empty_scene) -> None:
+def test_capture_panel_warns_in_one_line_when_the_poses_look_off(blender, empty_scene) -> None:
     import bpy
 
     settings = empty_scene.vortx
@@ -93,14 +140,21 @@ def test_capture_panel_shows_the_scale_uncertainty_and_poses_that_look_off(blend
     settings.scale_description = "metric scale x0.74 +-6 % from the floor and ceiling (dense depth): camera height 2.03 units"
     settings.pose_check = ("the given poses look off: points triangulated with them reproject 1.60 px from where the "
                            "photos show them; refine them against the photos: --refine-poses")
-    labels = [c[1] for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
-    texts = [label.get("text") or "" for label in labels]
-    assert "metres (floor and ceiling, +-6 %)" in texts
-    assert "the given poses look off" in " ".join(texts) and "--refine-poses" in " ".join(texts)
-    assert [label.get("icon") for label in labels if (label.get("text") or "").startswith("the given poses")] == ["ERROR"]
+    calls = _draw("VORTX_PT_capture", bpy.context)
+    assert _line(calls, "Scale")["text"] == "Scale: metric, +-6 %, floor and ceiling"
+    off = _line(calls, "Poses look off")
+    assert (off["text"], off["icon"], off["tooltip"]) == ("Poses look off: Refine Poses", "ERROR", settings.pose_check)
     settings.pose_check = ""
-    texts = [c[1].get("text") or "" for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
-    assert not any("look off" in t for t in texts)
+    assert not any("look off" in line["text"] for line in _lines(_draw("VORTX_PT_capture", bpy.context)))
+
+
+def test_explain_shows_its_text_as_the_tooltip_and_reports_it(blender, empty_scene, capsys) -> None:
+    import bpy
+
+    explain = bpy.types.VORTX_OT_explain
+    assert explain.description(bpy.context, SimpleNamespace(text="Skipped: IMG_0003.jpg")) == "Skipped: IMG_0003.jpg"
+    assert bpy.ops.vortx.explain(text="Skipped: IMG_0003.jpg", level="WARNING") == {"FINISHED"}
+    assert "Warning: Skipped: IMG_0003.jpg" in capsys.readouterr().out  # background mode prints reports
 
 
 def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
@@ -130,14 +184,15 @@ def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
 @pytest.mark.parametrize(
     "panel, expected",
     [
-        ("VORTX_PT_reconstruction", ["method", "voxel_size", "result_mode"]),
-        ("VORTX_PT_stereo", ["stereo_image_size", "stereo_views", "stereo_planes", "stereo_sources", "stereo_min_ncc",
-                             "stereo_consistency"]),
+        ("VORTX_PT_reconstruction", ["method", "quality", "voxel_size", "result_mode"]),
+        ("VORTX_PT_stereo", ["stereo_matcher", "stereo_image_size", "stereo_views", "stereo_planes", "stereo_sources",
+                             "stereo_min_ncc", "stereo_consistency"]),
         ("VORTX_PT_pose_settings", ["sfm_matcher", "sfm_max_image_side", "camera_height"]),
-        ("VORTX_PT_model", ["weights_source", "device", "seed"]),
+        ("VORTX_PT_model", ["weights_source", "device", "seed", "view_count", "tile_size", "image_size"]),
         ("VORTX_PT_tiles", ["show_tiles"]),
-        ("VORTX_PT_result", ["min_piece_faces", "min_piece_fraction", "target_faces", "texture_size", "face_budget"]),
-        ("VORTX_PT_advanced", ["frustum_depth", "max_room_size", "image_size", "colour_views"]),
+        ("VORTX_PT_result", ["min_piece_faces", "min_piece_fraction", "target_faces", "texture_size", "face_budget",
+                             *(["headset"] if "headset" in RECON_NAMES else [])]),  # the headset: being added
+        ("VORTX_PT_advanced", ["frustum_depth", "max_room_size", "colour_views"]),
     ],
 )
 def test_settings_panels_show_their_properties(blender, empty_scene, panel: str, expected: list[str]) -> None:
@@ -152,7 +207,7 @@ def test_weights_file_shown_only_when_chosen(blender, empty_scene) -> None:
 
     empty_scene.vortx.weights_source = "FILE"
     props = [c[1]["property"] for c in _draw("VORTX_PT_model", bpy.context) if c[0] == "prop"]
-    assert props == ["weights_source", "weights_path", "device", "seed"]
+    assert props[:4] == ["weights_source", "weights_path", "device", "seed"]
 
 
 @pytest.mark.parametrize(
@@ -223,7 +278,7 @@ def test_result_panel_offers_the_bake_with_the_vr_preset_and_its_progress(blende
     import numpy as np
 
     labels = [c[1].get("text") for c in _draw("VORTX_PT_result", bpy.context) if c[0] == "label"]
-    assert " ".join(t for t in labels if t).startswith("VR preset: 100k faces, 4096 px (2048 px for mobile headsets)")
+    assert "VR preset: 100k faces, 4096 px" in labels
     assert not any(t and t.startswith("Textured") for t in labels)
 
     results = blender.vortx_blender.result
@@ -253,30 +308,34 @@ def test_result_panel_offers_the_bake_with_the_vr_preset_and_its_progress(blende
         job.wait()
 
 
-def test_long_pose_and_scale_values_are_shown_whole_not_cut(blender, empty_scene) -> None:
-    """Blender cuts a label that does not fit with "..." in its middle: beside its label a value has
-    about 60 % of the sidebar; a longer one goes whole on its own lines under the label, and wrapped
-    text follows the sidebar's width."""
+def test_details_wrap_long_text_whole_to_the_sidebar_width(blender, empty_scene) -> None:
+    """Long text (Details) is wrapped by Blender's own text width to the sidebar it is drawn in: every
+    word is shown, no line is wider than the sidebar shows, and a wider sidebar takes fewer lines."""
     import bpy
 
-    panels = blender.ui.panels
+    sidebar = blender.ui.sidebar
     settings = empty_scene.vortx
     settings.capture_path = "/captures/kitchen/"
     settings.frame_count, settings.posed_frame_count, settings.poses_metric = 36, 36, True
     settings.pose_status = "36 of 36 posed by SfM, scaled by the camera height over the floor, +-12 %"
     settings.scale_source, settings.scale_uncertainty = "camera height over the floor", 0.12
-    texts = [c[1].get("text") or "" for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
-    assert "Poses:" in texts and "Scale:" in texts
-    assert " ".join(texts[texts.index("Poses:") + 1:texts.index("Scale:")]) == settings.pose_status
-    assert "metres (camera height over the floor, +-12 %)" in " ".join(texts)
-    assert max(len(t) for t in texts) <= panels.WRAP_CHARS
-    settings.pose_status = "All 6 posed (colmap)"  # short: beside its label, as before
-    texts = [c[1].get("text") or "" for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "label"]
-    assert "Poses" in texts and "All 6 posed (colmap)" in texts
-    # A wider sidebar holds more per line; a narrow one fewer, never below the minimum.
-    wide = SimpleNamespace(region=SimpleNamespace(width=600))
-    narrow = SimpleNamespace(region=SimpleNamespace(width=80))
+    settings.scale_description = ("metric scale x0.993 +-12 % from the camera height over the floor (sparse points): camera "
+                                  "height 1.5 units (sparse points); floor plane from 891 points (RANSAC inliers 37 % of "
+                                  "the 2377 points below the cameras)")
+
+    def details(width_px: float) -> list[dict]:
+        calls: list = []
+        blender.ui.panels.draw_capture_details(RecordingLayout(calls), settings, width_px)
+        return _lines(calls)
+
+    lines = details(sidebar.CONTENT_PX)
+    texts = [line["text"] for line in lines]
+    start = next(i for i, t in enumerate(texts) if t.startswith("Scale:"))
+    assert " ".join(texts[start:]) == f"Scale: {settings.scale_description}"
+    assert len(texts) - start >= 4  # wrapped, not one cut line
+    assert max(sidebar.text_width(t) for t in texts) <= sidebar.line_px()
+    assert len(details(2 * sidebar.CONTENT_PX)) < len(lines)
+    # The width a panel draws into: the region's, less the tab strip and margins, at UI scale 1.
     scale = bpy.context.preferences.system.ui_scale or 1.0  # 0 without a window
-    assert panels.wrap_chars(wide) == int((600 / scale - panels.MARGIN_PX) / panels.CHAR_PX) > panels.WRAP_CHARS
-    assert panels.wrap_chars(narrow) == panels.MIN_WRAP_CHARS
-    assert panels.wrap_chars(SimpleNamespace(region=None)) == panels.WRAP_CHARS
+    assert sidebar.content_px(SimpleNamespace(region=SimpleNamespace(width=600))) == pytest.approx(600 / scale - sidebar.MARGIN_PX)
+    assert sidebar.content_px(SimpleNamespace(region=None)) == sidebar.CONTENT_PX

@@ -41,6 +41,7 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
         "resolution_y": 480,
         "poses_metric": True,
         "pose_status": "300 of 321 posed by SfM",
+        "pose_source": "SfM",
         "scale_source": "camera height",
         "scale_description": "floor plane from 900 points, median camera height 1.1 units -> scaled x1.1 to 1.25 m",
         "scale_uncertainty": 0.12,
@@ -68,12 +69,14 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
         "min_piece_fraction": 0.02,
         "target_faces": 300000,
         "method": "VORTX",
+        "stereo_matcher": "PATCHMATCH",
         "stereo_image_size": 240,
         "stereo_views": 50,
         "stereo_planes": 96,
         "stereo_sources": 6,
         "stereo_min_ncc": 0.4,
         "stereo_consistency": 1,
+        "quality": "CUSTOM",  # read from the stereo settings above (no preset has them); choosing Custom sets nothing
         "texture_size": 2048,
         "face_budget": 50000,
     }
