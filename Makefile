@@ -4,9 +4,23 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-$(shell cat requirements.txt constraints.txt | sha1sum | cut -c1-12)
 
-.PHONY: venv test demo extension bench devrooms clean
+.PHONY: venv tools test demo extension bench devrooms clean
 
 venv: $(STAMP)
+
+# The JavaScript tools of the textured result (tools/package.json, exact versions in package-lock.json):
+# the Khronos glTF-Validator (tests), the Basis Universal encoder (KTX2 textures of the headset presets),
+# model-viewer and three.js's decoders (the preview page). Needs node and npm; without them the KTX2
+# presets and the preview say what to install, and the tests that need them skip.
+TOOLS_STAMP := tools/node_modules/.installed-$(shell cat tools/package-lock.json 2>/dev/null | sha1sum | cut -c1-12)
+
+tools: $(TOOLS_STAMP)
+
+$(TOOLS_STAMP): tools/package.json tools/package-lock.json
+	@command -v npm >/dev/null || { echo "warning: npm not found: KTX2 textures, the preview page and the glTF-Validator tests need node and npm (e.g. apt-get install nodejs npm), then make tools"; exit 0; }
+	cd tools && npm ci --ignore-scripts --no-audit --no-fund --loglevel=error
+	rm -f tools/node_modules/.installed-*
+	touch $(TOOLS_STAMP)
 
 $(STAMP): requirements.txt constraints.txt
 	@command -v $(PYTHON) >/dev/null || { echo "error: $(PYTHON) not found. Install Python 3.11 (Blender's bpy module needs exactly 3.11) or run 'make PYTHON=/path/to/python3.11'."; exit 1; }
@@ -17,7 +31,7 @@ $(STAMP): requirements.txt constraints.txt
 	rm -f $(VENV)/.installed-*
 	touch $(STAMP)
 
-test: venv
+test: venv tools
 	$(PY) -m pytest -q -p no:cacheprovider
 
 demo: venv

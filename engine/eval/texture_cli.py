@@ -5,6 +5,8 @@ Holds out --heldout photos spread over the capture, bakes the texture (VR preset
 vertices from the others, renders both (and the ground-truth mesh textured the same way, with --gt)
 from each held-out camera and prints PSNR / SSIM against the photo on the pixels every render covers.
 --picture writes photo | vertex colours | texture (| ground truth) for the middle held-out photo.
+--headset with a KTX2 preset (standalone, vision-pro, web) also scores the texture as the GPU shows it
+after KTX2 / Basis Universal compression, and prints both textures' file size and GPU memory.
 The capture is prepared as `reconstruct` prepared it, so its cameras see the mesh where it is.
 """
 
@@ -26,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("mesh", type=Path, help="the reconstructed mesh (.ply)")
     parser.add_argument("--gt", type=Path, help="the true mesh (.ply) in the same frame: textured the same way, a ceiling")
     parser.add_argument("--heldout", type=int, default=4, help="photos to hold out, spread over the capture (default %(default)s)")
-    add_setting_arguments(parser, only=("texture_size", "face_budget"))
+    add_setting_arguments(parser, only=("texture_size", "face_budget", "headset"))
     parser.add_argument("--voxel-size", type=float, default=0.04, help="the mesh's voxel size (occlusion tolerance: two voxels)")
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="as given to `reconstruct`, for captures whose poses are not metric (default %(default)s)")
@@ -45,7 +47,8 @@ def run(args: argparse.Namespace) -> int:
     for path in (args.mesh, args.gt):
         if path is not None and (path.suffix.lower() != ".ply" or not path.is_file()):
             raise VortxError(f"{path}: give meshes as .ply files")
-    settings = ReconSettings(texture_size=args.texture_size, face_budget=args.face_budget, voxel_size=args.voxel_size)
+    settings = ReconSettings(texture_size=args.texture_size, face_budget=args.face_budget, voxel_size=args.voxel_size,
+                             headset=args.headset)
     settings.validate()
     capture = prepare_capture(load_capture(args.capture), camera_height=args.camera_height, sfm=SFM_NEVER).capture
     held = spread_heldout([f.image_path.stem for f in capture.posed_frames], args.heldout)
@@ -59,6 +62,9 @@ def run(args: argparse.Namespace) -> int:
     print("PSNR dB / SSIM against each held-out photo, on the pixels every render covers (made without that photo):")
     for line in report_table(report):
         print("  " + line)
+    for fmt, sizes in report.get("texture_files", {}).items():
+        print(f"  {fmt:<11} {sizes['bytes'] / 1e6:7.2f} MB in the file, {sizes['gpu_bytes'] / 2**20:7.1f} MiB of GPU memory "
+              "(mipmaps included)")
     if args.picture:
         shown = report["views"][len(report["views"]) // 2]["photo"]
         images = dict(renders[shown])

@@ -61,7 +61,8 @@ def heldout_texture_report(mesh: Mesh, capture: Capture, heldout: Sequence[str],
 
     Returns {"heldout": names, "views": [{"photo", "pixels", "coverage", "psnr": {method: dB},
     "ssim": {method: value}}], "mean": {"psnr": {...}, "ssim": {...}}, "bake", "ground_truth_bake"
-    (bake stats or None), "timings_s", "renders": {photo: {"photo": image, method: image}}} — the
+    (bake stats or None), "texture_files" (with a KTX2 headset preset: bytes on disk and on the GPU of
+    the PNG and the KTX2 texture, whose decoded texels are scored as "texture <format>"), "timings_s", "renders": {photo: {"photo": image, method: image}}} — the
     renders are (h, w, 3) uint8 arrays (drop them before writing the rest as JSON).
     """
     wanted = set(heldout)
@@ -82,6 +83,21 @@ def heldout_texture_report(mesh: Mesh, capture: Capture, heldout: Sequence[str],
     textured, bake_stats = textured_result(mesh, train, options, progress)
     timings["texture bake"] = time.perf_counter() - mark
 
+    compressed, texture_files = None, {}
+    if options.texture_format != "png":  # the headset preset's GPU texture, decoded as a GPU shows it
+        from ..texture.files import encode_png
+        from ..texture.ktx2 import decode_ktx2, encode_ktx2
+        from ..texture.presets import gpu_texture_bytes
+
+        mark = time.perf_counter()
+        report(progress, f"held-out: {options.texture_format}", 0, 1)
+        data = encode_ktx2(textured.texture, options.texture_format, f"the '{options.preset}' headset preset")
+        compressed = replace(textured, texture=decode_ktx2(data))
+        width, height = textured.texture_size
+        texture_files = {fmt: {"bytes": size, "gpu_bytes": gpu_texture_bytes(width, height, fmt)}
+                         for fmt, size in (("png", len(encode_png(textured.texture))), (options.texture_format, len(data)))}
+        timings[f"texture {options.texture_format}"] = time.perf_counter() - mark
+
     mark = time.perf_counter()
     report(progress, "held-out: vertex colours", 0, 1)
     coloured = replace(mesh, colors=colour_vertices(mesh, colour_views(train), options.occlusion_tolerance))
@@ -101,6 +117,8 @@ def heldout_texture_report(mesh: Mesh, capture: Capture, heldout: Sequence[str],
         photo = view.load()
         shown = {VERTEX_COLOURS: render_vertex_colours(coloured, view.K, view.pose, view.size),
                  TEXTURE: render_textured(textured, view.K, view.pose, view.size)}
+        if compressed is not None:
+            shown[f"{TEXTURE} {options.texture_format}"] = render_textured(compressed, view.K, view.pose, view.size)
         if gt_textured is not None:
             shown[GROUND_TRUTH] = render_textured(gt_textured, view.K, view.pose, view.size)
         mask = np.logical_and.reduce([m for _, m in shown.values()])
@@ -117,7 +135,8 @@ def heldout_texture_report(mesh: Mesh, capture: Capture, heldout: Sequence[str],
     methods = list(views[0]["psnr"])
     mean = {metric: {m: float(np.nanmean([v[metric][m] for v in views])) for m in methods} for metric in ("psnr", "ssim")}
     return {"heldout": [v.name for v in held], "views": views, "mean": mean, "bake": bake_stats,
-            "ground_truth_bake": gt_stats, "timings_s": {k: round(t, 2) for k, t in timings.items()}, "renders": renders}
+            "ground_truth_bake": gt_stats, "texture_files": texture_files,
+            "timings_s": {k: round(t, 2) for k, t in timings.items()}, "renders": renders}
 
 
 def colour_views(views: Sequence[TextureView]) -> list[ColourView]:

@@ -29,14 +29,15 @@ from .presets import add_quality_argument, quality_of, refuse_unused_quality, se
 from .settings import (ReconSettings, add_setting_arguments, given_settings, refuse_ignored_settings,
                        refuse_untextured_settings)
 
-MESH_SUFFIXES = (".ply", ".obj", ".glb")  # .glb and .obj are textured (engine/texture), .ply has vertex colours
+MESH_SUFFIXES = (".ply", ".obj", ".glb", ".usdz")  # .glb, .obj, .usdz are textured (engine/texture), .ply has vertex colours
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("capture", type=Path, help="capture folder (any layout `python -m engine info` reads), with poses")
     parser.add_argument("--out", type=Path, required=True,
                         help="output mesh: .ply (every face, vertex colours, confidence layer), or a textured VR-ready "
-                             "result: .glb (one file, texture embedded) or .obj (+ .mtl + _texture.png), decimated to "
+                             "result: .glb (one file, texture embedded; --headset picks its budget and compression), .obj (+ .mtl + "
+                             "_texture.png) or .usdz (Apple Vision Pro, Quick Look), decimated to "
                              "--face-budget, with the .ply beside it; a .json sidecar is written beside it")
     add_quality_argument(parser)  # --quality preview|standard|high (engine/recon/presets.py)
     add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI (--frame among them)
@@ -46,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's own poses against the photos before reconstructing (for slightly-off "
                              "tracker, ARKit or SLAM poses; the report gives each frame's change)")
+    parser.add_argument("--preview", action="store_true",
+                        help="beside a .glb, also write <name>.html, a preview page (model-viewer: orbit and AR) that needs "
+                             "no network; serve the folder to open it (python3 -m http.server)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -77,12 +81,14 @@ def report_preparation(prepared: PreparedCapture) -> None:
 def run(args: argparse.Namespace) -> int:
     out: Path = args.out
     if out.suffix.lower() not in MESH_SUFFIXES:
-        raise VortxError(f"--out {out}: the mesh file must end in .ply, .obj or .glb")
+        raise VortxError(f"--out {out}: the mesh file must end in .ply, .obj, .glb or .usdz")
+    if getattr(args, "preview", False) and out.suffix.lower() != ".glb":
+        raise VortxError(f"--preview: the preview page shows a .glb, not {out.name}")
     settings = settings_from_args(args)
     settings.validate()
     refuse_ignored_settings(settings, given_settings(args))  # before the capture loads: an early, clear error
     refuse_unused_quality(settings, args.quality, given_settings(args))
-    refuse_untextured_settings(given_settings(args), out.suffix.lower() != ".ply", "--out room.glb or room.obj")
+    refuse_untextured_settings(given_settings(args), out.suffix.lower() != ".ply", "--out room.glb, room.obj or room.usdz")
 
     from ..capture import load_capture
     from .driver import reconstruct
@@ -126,7 +132,9 @@ def run(args: argparse.Namespace) -> int:
                 result.stats["texture"] = texture_stats
                 frame = frame_record(prepared, settings.frame)
                 written = write_textured(out, moved_mesh(textured, to_output),
-                                         extras={"vortx_settings": settings.to_dict(), "vortx_frame": frame}) + [ply]
+                                         extras={"vortx_settings": settings.to_dict(), "vortx_frame": frame},
+                                         options=settings.texture_options,
+                                         preview=getattr(args, "preview", False)) + [ply]
             else:
                 out = ply
     finally:

@@ -15,6 +15,7 @@ from typing import Any, Optional
 from ..errors import VortxError
 from ..stereo.options import STEREO_MATCHERS, StereoOptions  # the stereo defaults live with the stereo code
 from ..texture.options import TEXTURE_SIZES, TextureOptions  # and the texture bake's with the bake
+from ..texture.presets import DEFAULT_PRESET, PRESET_NAMES, PRESETS, with_preset  # the headset budgets
 
 # Each level is twice as coarse as the next: coarse / medium / fine = 4x / 2x / 1x the finest voxel.
 LEVEL_SCALES: tuple[int, int, int] = (4, 2, 1)
@@ -170,6 +171,12 @@ class ReconSettings:
     face_budget: int = setting(
         TextureOptions.face_budget, "a textured result is decimated to at most this many faces before the bake "
         "(0 = keep every face)", (CLI, BLENDER), min=0, max=10_000_000, label="Face Budget", textured=True)
+    headset: str = setting(
+        DEFAULT_PRESET, "the headset the textured result is for: caps the texture size and face budget and picks how the "
+        "GLB stores texture (PNG or KTX2) and geometry (Draco); engine/texture/presets.py", (CLI, BLENDER),
+        choices=PRESET_NAMES, label="Headset", textured=True,
+        choice_help=tuple(f"{p.device}: up to {p.texture_size} px" + (f", {p.face_budget:,} faces" if p.face_budget else "")
+                          + f", texture {p.texture_format}, geometry {p.geometry}" for p in PRESETS.values()))
 
     # Where the result is written: the engine always reconstructs in the world (output_frame.py).
     frame: str = setting(
@@ -186,8 +193,8 @@ class ReconSettings:
     def texture_options(self) -> TextureOptions:
         """The bake's options: this run's texture size and face budget, the occlusion tolerance of its
         vertex colours (two voxels), the rest at their defaults."""
-        return TextureOptions(texture_size=self.texture_size, face_budget=self.face_budget,
-                              occlusion_tolerance=2 * self.voxel_size)
+        return with_preset(TextureOptions(texture_size=self.texture_size, face_budget=self.face_budget,
+                                          occlusion_tolerance=2 * self.voxel_size), self.headset)
 
     @property
     def colour(self) -> bool:

@@ -20,7 +20,7 @@ from ..jobs import TqdmProgress
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .files import TEXTURED_SUFFIXES
 
-TEXTURE_FLAGS = ("texture_size", "face_budget")
+TEXTURE_FLAGS = ("texture_size", "face_budget", "headset")
 LITTLE_SEEN = 0.05  # below this share of the texels seen by a photo, the capture and mesh do not match
 
 
@@ -29,8 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     parser.add_argument("capture", type=Path, help="the capture the mesh was reconstructed from (with poses)")
     parser.add_argument("mesh", type=Path, help="the mesh (.ply, normals facing the cameras, as `reconstruct` writes it)")
-    parser.add_argument("--out", type=Path, required=True, help="the textured result: .glb (one file) or .obj "
-                                                                "(+ .mtl + _texture.png)")
+    parser.add_argument("--out", type=Path, required=True, help="the textured result: .glb (one file), .obj "
+                                                                "(+ .mtl + _texture.png) or .usdz (Apple)")
     add_setting_arguments(parser, only=TEXTURE_FLAGS)
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="as given to `reconstruct`, for captures whose poses are not metric (default %(default)s)")
@@ -39,6 +39,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default %(default)s)")
     parser.add_argument("--exclude", nargs="*", default=[], metavar="PHOTO",
                         help="photos (file names or stems) not to bake from, e.g. held out for checking")
+    parser.add_argument("--preview", action="store_true",
+                        help="beside a .glb, also write <name>.html: a preview page (model-viewer, orbit and AR) that "
+                             "needs no network; serve the folder to open it (python3 -m http.server)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
 
 
@@ -52,10 +55,13 @@ def run(args: argparse.Namespace) -> int:
     from .files import write_textured
 
     if args.out.suffix.lower() not in TEXTURED_SUFFIXES:
-        raise VortxError(f"--out {args.out}: a textured result is written as .glb or .obj")
+        raise VortxError(f"--out {args.out}: a textured result is written as .glb, .obj or .usdz")
     if args.mesh.suffix.lower() != ".ply" or not args.mesh.is_file():
         raise VortxError(f"{args.mesh}: give the mesh as a .ply file (as `python -m engine reconstruct` writes it)")
-    settings = ReconSettings(texture_size=args.texture_size, face_budget=args.face_budget, voxel_size=args.voxel_size)
+    if args.preview and args.out.suffix.lower() != ".glb":
+        raise VortxError(f"--preview: the preview page shows a .glb, not {args.out.name}")
+    settings = ReconSettings(texture_size=args.texture_size, face_budget=args.face_budget, voxel_size=args.voxel_size,
+                             headset=args.headset)
     settings.validate()
     mesh = read_ply(args.mesh)  # without normals, the bake computes them from the winding
     capture = load_capture(args.capture)
@@ -68,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         textured, stats = textured_result(mesh, views, settings.texture_options, progress)
     finally:
         progress.close()
-    written = write_textured(args.out, textured)
+    written = write_textured(args.out, textured, options=settings.texture_options, preview=args.preview)
     return report_texture(args.out, written, stats)
 
 
@@ -81,6 +87,8 @@ def report_texture(out: Path, written: list[Path], stats: dict) -> int:
     if seen < LITTLE_SEEN:
         print(f"warning: the photos saw only {100 * seen:.1f} % of the surface; is the capture the one the mesh was "
               "made from, with the same poses?", file=sys.stderr)
-    print(f"wrote {', '.join(p.name for p in written)}: {stats['faces']} faces, {stats['texture_size']} px texture, "
-          f"{100 * seen:.0f} % of it seen by the photos, in {stats['timings_s']['total']:.1f} s")
+    headset = f" ({stats['headset']} headset preset)" if stats.get("headset") else ""
+    print(f"wrote {', '.join(p.name for p in written[:4])}{' ...' if len(written) > 4 else ''}: {stats['faces']} faces, "
+          f"{stats['texture_size']} px texture{headset}, {100 * seen:.0f} % of it seen by the photos, in "
+          f"{stats['timings_s']['total']:.1f} s")
     return 0

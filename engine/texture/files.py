@@ -8,21 +8,30 @@ know the extension show them as photographed, others fall back to the lit materi
 layer travels as application-specific vertex attributes (`_OBSERVATIONS`, ...: glTF's rule for
 custom semantics). No COLOR_0: viewers multiply the base colour by it.
 
+With a headset preset (presets.py) the GLB can store its texture as KTX2 (ktx2.py, with a small PNG
+fallback) and its mesh with Draco (draco.py). USDZ (usdz.py) is the Apple form of the same result.
+
 OBJ keeps the engine's axes (file coordinates = world metres, Z up), like the untextured OBJ and PLY.
+
+Files are written under a temporary name beside their place and renamed only when every file of the
+result is complete: a failed encoder or an interrupted run leaves nothing half-written.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import struct
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any, Iterator, Optional
 
 import cv2
 import numpy as np
 
 from ..errors import VortxError
 from ..mesh_io import PathLike, write_obj
+from .options import TextureOptions
 from .textured_mesh import TexturedMesh
 
 MATERIAL_NAME = "VoRTX Texture"
@@ -75,29 +84,41 @@ class _Buffer:
         return len(self.accessors) - 1
 
 
-def glb_bytes(mesh: TexturedMesh, name: str = "VoRTX Result", extras: Optional[dict[str, Any]] = None) -> bytes:
-    """The whole GLB file of `mesh` as bytes."""
+def glb_bytes(mesh: TexturedMesh, name: str = "VoRTX Result", extras: Optional[dict[str, Any]] = None,
+              geometry: str = "none", needed_by: str = "this GLB") -> bytes:
+    """The whole GLB file of `mesh` as bytes (PNG texture); geometry "draco": the mesh Draco-compressed."""
     if len(mesh.faces) == 0:
         raise VortxError("the mesh has no faces; there is nothing to write")
     buffer = _Buffer()
-    attributes = {
-        "POSITION": buffer.accessor(z_up_to_y_up(mesh.vertices), "VEC3", ARRAY_BUFFER, bounds=True),
-        "NORMAL": buffer.accessor(z_up_to_y_up(mesh.normals), "VEC3", ARRAY_BUFFER),
-        "TEXCOORD_0": buffer.accessor(np.stack([mesh.uvs[:, 0], 1.0 - mesh.uvs[:, 1]], 1).astype(np.float32),
-                                      "VEC2", ARRAY_BUFFER),
-    }
-    for key, values in mesh.attributes.items():
-        attributes["_" + key.upper()] = buffer.accessor(np.asarray(values, np.float32).reshape(-1), "SCALAR",
-                                                        ARRAY_BUFFER)
-    indices = buffer.accessor(np.asarray(mesh.faces, np.uint32).reshape(-1), "SCALAR", ELEMENT_ARRAY_BUFFER)
+    positions, normals = z_up_to_y_up(mesh.vertices), z_up_to_y_up(mesh.normals)
+    uvs = np.stack([mesh.uvs[:, 0], 1.0 - mesh.uvs[:, 1]], 1).astype(np.float32)
+    custom = {"_" + key.upper(): np.asarray(values, np.float32).reshape(-1) for key, values in mesh.attributes.items()}
+    extensions_used = ["KHR_materials_unlit"]
+    primitive: dict[str, Any]
+    if geometry == "draco":
+        from .draco import draco_primitive
+
+        primitive = draco_primitive(buffer, positions, normals, uvs, custom, np.asarray(mesh.faces, np.uint32), needed_by)
+        extensions_used.append("KHR_draco_mesh_compression")
+    else:
+        attributes = {
+            "POSITION": buffer.accessor(positions, "VEC3", ARRAY_BUFFER, bounds=True),
+            "NORMAL": buffer.accessor(normals, "VEC3", ARRAY_BUFFER),
+            "TEXCOORD_0": buffer.accessor(uvs, "VEC2", ARRAY_BUFFER),
+        }
+        for key, values in custom.items():
+            attributes[key] = buffer.accessor(values, "SCALAR", ARRAY_BUFFER)
+        indices = buffer.accessor(np.asarray(mesh.faces, np.uint32).reshape(-1), "SCALAR", ELEMENT_ARRAY_BUFFER)
+        primitive = {"attributes": attributes, "indices": indices}
     image_view = buffer.view(encode_png(mesh.texture))
     document: dict[str, Any] = {
         "asset": {"version": "2.0", "generator": "VoRTX for Blender"},
-        "extensionsUsed": ["KHR_materials_unlit"],
+        "extensionsUsed": extensions_used,
+        **({"extensionsRequired": ["KHR_draco_mesh_compression"]} if geometry == "draco" else {}),
         "scene": 0,
         "scenes": [{"nodes": [0]}],
         "nodes": [{"mesh": 0, "name": name, **({"extras": extras} if extras else {})}],
-        "meshes": [{"name": name, "primitives": [{"attributes": attributes, "indices": indices, "material": 0}]}],
+        "meshes": [{"name": name, "primitives": [{**primitive, "material": 0}]}],
         "materials": [{"name": MATERIAL_NAME,
                        "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}, "metallicFactor": 0.0,
                                                 "roughnessFactor": 1.0},
@@ -110,20 +131,91 @@ def glb_bytes(mesh: TexturedMesh, name: str = "VoRTX Result", extras: Optional[d
         "bufferViews": buffer.views,
         "buffers": [{"byteLength": len(buffer.data)}],
     }
+    return _glb_chunks(document, bytes(buffer.data))
+
+
+def _glb_chunks(document: dict[str, Any], binary: bytes) -> bytes:
     text = json.dumps(document, separators=(",", ":")).encode()
     text += b" " * (-len(text) % 4)
-    binary = bytes(buffer.data) + b"\0" * (-len(buffer.data) % 4)
+    binary = binary + b"\0" * (-len(binary) % 4)
     total = 12 + 8 + len(text) + 8 + len(binary)
     return (struct.pack("<III", GLB_MAGIC, GLB_VERSION, total) + struct.pack("<II", len(text), CHUNK_JSON) + text
             + struct.pack("<II", len(binary), CHUNK_BIN) + binary)
 
 
+def unpack_glb(data: bytes) -> tuple[dict[str, Any], bytes]:
+    """(the glTF JSON, the binary chunk) of GLB bytes."""
+    magic, version, length = struct.unpack_from("<III", data, 0)
+    if magic != GLB_MAGIC or version != GLB_VERSION or length != len(data):
+        raise VortxError("not a glTF 2.0 binary (GLB) file, or a truncated one")
+    json_length, json_type = struct.unpack_from("<II", data, 12)
+    document = json.loads(data[20:20 + json_length])
+    offset = 20 + json_length
+    if offset >= len(data):
+        return document, b""
+    bin_length, bin_type = struct.unpack_from("<II", data, offset)
+    if bin_type != CHUNK_BIN:
+        raise VortxError("the GLB's second chunk is not its binary buffer")
+    return document, data[offset + 8:offset + 8 + bin_length]
+
+
+def pack_glb(document: dict[str, Any], views: list[bytes]) -> bytes:
+    """GLB bytes of `document` with its buffer views' contents `views` laid out again in order (4-byte
+    aligned) in the one binary buffer."""
+    data = bytearray()
+    for entry, payload in zip(document["bufferViews"], views):
+        data += b"\0" * (-len(data) % 4)
+        entry["buffer"], entry["byteOffset"], entry["byteLength"] = 0, len(data), len(payload)
+        data += payload
+    document["buffers"] = [{"byteLength": len(data)}]
+    return _glb_chunks(document, bytes(data))
+
+
+def textured_glb_bytes(mesh: TexturedMesh, options: Optional[TextureOptions] = None, name: str = "VoRTX Result",
+                       extras: Optional[dict[str, Any]] = None) -> bytes:
+    """The GLB of `mesh` as `options` (its headset preset) asks: texture PNG or KTX2, geometry plain or Draco."""
+    options = options or TextureOptions()
+    needed_by = f"the '{options.preset}' headset preset"
+    data = glb_bytes(mesh, name, extras, geometry=options.geometry, needed_by=needed_by)
+    if options.texture_format != "png":
+        from .ktx2 import glb_with_ktx2
+
+        data = glb_with_ktx2(data, options.texture_format, needed_by)
+    return data
+
+
 def write_glb(path: PathLike, mesh: TexturedMesh, name: str = "VoRTX Result",
-              extras: Optional[dict[str, Any]] = None) -> Path:
+              extras: Optional[dict[str, Any]] = None, options: Optional[TextureOptions] = None) -> Path:
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_bytes(glb_bytes(mesh, name, extras))
+    data = textured_glb_bytes(mesh, options, name, extras)
+    with staged([path]) as (temporary,):
+        temporary.write_bytes(data)
     return path
+
+
+@contextmanager
+def staged(paths: list[Path]) -> Iterator[list[Path]]:
+    """Temporary paths beside `paths` to write into; renamed onto them only when the block finishes,
+    removed when it fails (nothing half-written is left)."""
+    paths = [Path(p) for p in paths]
+    for path in paths:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = [p.with_name(f".{p.name}.{os.getpid()}.partial") for p in paths]
+    try:
+        yield temporary
+        for source, target in zip(temporary, paths):
+            if not source.exists():
+                raise VortxError(f"{target.name} was not written")
+        for source, target in zip(temporary, paths):
+            os.replace(source, target)
+    finally:
+        for source in temporary:
+            if source.is_dir():
+                import shutil
+
+                shutil.rmtree(source, ignore_errors=True)
+            else:
+                source.unlink(missing_ok=True)
 
 
 def write_textured_obj(path: PathLike, mesh: TexturedMesh) -> list[Path]:
@@ -131,22 +223,36 @@ def write_textured_obj(path: PathLike, mesh: TexturedMesh) -> list[Path]:
     path = Path(path)
     mtl, png = path.with_suffix(".mtl"), path.with_name(path.stem + "_texture.png")
     material = "vortx_texture"
-    write_obj(path, mesh.vertices, mesh.faces, normals=mesh.normals, uvs=mesh.uvs, material=(mtl.name, material))
-    mtl.write_text(f"# written by VoRTX for Blender\nnewmtl {material}\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nd 1\nillum 1\n"
-                   f"map_Kd {png.name}\n")
-    png.write_bytes(encode_png(mesh.texture))
+    with staged([path, mtl, png]) as (obj_temp, mtl_temp, png_temp):
+        write_obj(obj_temp, mesh.vertices, mesh.faces, normals=mesh.normals, uvs=mesh.uvs,
+                  material=(mtl.name, material))
+        mtl_temp.write_text(f"# written by VoRTX for Blender\nnewmtl {material}\nKa 0 0 0\nKd 1 1 1\nKs 0 0 0\nd 1\n"
+                            f"illum 1\nmap_Kd {png.name}\n")
+        png_temp.write_bytes(encode_png(mesh.texture))
     return [path, mtl, png]
 
 
-TEXTURED_SUFFIXES = (".glb", ".obj")
+TEXTURED_SUFFIXES = (".glb", ".obj", ".usdz")
 
 
-def write_textured(path: PathLike, mesh: TexturedMesh, extras: Optional[dict[str, Any]] = None) -> list[Path]:
-    """A .glb (one file) or .obj (+ .mtl + _texture.png) by the path's suffix. -> the files written."""
+def write_textured(path: PathLike, mesh: TexturedMesh, extras: Optional[dict[str, Any]] = None,
+                   options: Optional[TextureOptions] = None, preview: bool = False) -> list[Path]:
+    """A .glb (one file; texture and geometry as `options`' headset preset asks), .obj (+ .mtl +
+    _texture.png) or .usdz (Apple: PNG texture, metres, Y up) by the path's suffix; with `preview`, a
+    .glb also gets the HTML preview page beside it (preview.py). -> the files written."""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".glb":
-        return [write_glb(path, mesh, extras=extras)]
+        written = [write_glb(path, mesh, extras=extras, options=options)]
+        if preview:
+            from .preview import write_preview
+
+            written += write_preview(path)
+        return written
     if suffix == ".obj":
         return write_textured_obj(path, mesh)
-    raise VortxError(f"{path.name}: a textured result is written as .glb or .obj")
+    if suffix == ".usdz":
+        from .usdz import write_usdz
+
+        return [write_usdz(path, mesh, needed_by=f"--out {path.name}")]
+    raise VortxError(f"{path.name}: a textured result is written as .glb, .obj or .usdz")

@@ -11,6 +11,8 @@ from dataclasses import dataclass
 from ..errors import VortxError
 
 TEXTURE_SIZES = (512, 1024, 2048, 4096, 8192)
+TEXTURE_FORMATS = ("png", "ktx2-etc1s", "ktx2-uastc")  # how a GLB stores the texture (presets.py)
+GEOMETRY_COMPRESSIONS = ("none", "draco")  # how a GLB stores the mesh (presets.py)
 MOBILE_TEXTURE_SIZE = 2048  # standalone headsets (Quest class): 2048 keeps a room's texture at 16 MB of GPU memory
 
 
@@ -29,6 +31,8 @@ class TextureOptions:
     occlusion_tolerance: metres a point may lie behind the rendered depth and still count as seen (two
     voxels of the reconstruction, as for the vertex colours: ReconSettings sets it from its voxel size).
     exposure: even out exposure and white balance between the photos (exposure.py).
+    texture_format, geometry: how a GLB stores the texture and the mesh (TEXTURE_FORMATS,
+    GEOMETRY_COMPRESSIONS); preset: the headset preset they came from (presets.py, `with_preset`).
     """
 
     texture_size: int = 4096
@@ -39,6 +43,9 @@ class TextureOptions:
     occlusion_long_side: int = 320
     occlusion_tolerance: float = 0.08
     exposure: bool = True
+    texture_format: str = "png"
+    geometry: str = "none"
+    preset: str = "desktop"
 
     def validate(self) -> None:
         if self.texture_size not in TEXTURE_SIZES:
@@ -51,3 +58,6 @@ class TextureOptions:
             raise VortxError(f"min piece fraction must be in [0, 1), got {self.min_piece_fraction}")
         if self.padding < 0 or self.blend_power <= 0 or self.occlusion_long_side < 16 or self.occlusion_tolerance <= 0:
             raise VortxError("texture padding must be >= 0, blend power and occlusion tolerance > 0, the occlusion size >= 16 pixels")
+        if self.texture_format not in TEXTURE_FORMATS or self.geometry not in GEOMETRY_COMPRESSIONS:
+            raise VortxError(f"texture format must be one of {', '.join(TEXTURE_FORMATS)} and geometry compression one of "
+                             f"{', '.join(GEOMETRY_COMPRESSIONS)}, got {self.texture_format!r} / {self.geometry!r}")

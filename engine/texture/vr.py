@@ -93,4 +93,5 @@ def textured_result(mesh: Mesh, views: Sequence[TextureView], options: TextureOp
     report(progress, "texture: decimate", 1, 1)
     check(cancel)
     textured, bake_stats = bake_texture(light, views, options, progress, cancel)
-    return textured, {"vr": stats, **bake_stats}
+    return textured, {"vr": stats, **bake_stats, "headset": options.preset, "texture_format": options.texture_format,
+                      "geometry": options.geometry}

@@ -20,6 +20,7 @@ import pytest
 
 from conftest import REPO
 from fixtures_capture import intrinsics, ring_poses, write_scannet
+from fixtures_gltf import assert_valid_gltf
 from fixtures_texture import decode_png, glb_base_colour_png, read_glb
 
 BATCH = REPO / "scripts" / "vortx_batch.py"
@@ -59,6 +60,7 @@ def test_batch_vr_writes_a_textured_glb_and_reports_the_bake(scannet_capture: Pa
     assert stages == ["vortx [1/6] import capture", "vortx [2/6] poses", "vortx [3/6] reconstruct", "vortx [4/6] texture",
                       "vortx [5/6] save", "vortx [6/6] export"], stages
 
+    assert_valid_gltf(glb)  # the Khronos glTF-Validator: no error, no warning
     document, binary = read_glb(glb)
     (primitive,) = document["meshes"][0]["primitives"]
     assert "TEXCOORD_0" in primitive["attributes"] and "COLOR_0" not in primitive["attributes"]

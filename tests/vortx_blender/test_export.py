@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
+from fixtures_gltf import assert_valid_gltf  # the Khronos glTF-Validator on Blender's export
 from fixtures_texture import (decode_png, glb_base_colour_png, image_rows_top_first, make_box_capture, read_glb,
                               textured_scene)
 
@@ -33,6 +34,7 @@ def baked(blender, capture_dir):
 def test_glb_of_a_textured_result_has_uvs_and_the_photo_texture(blender, baked, tmp_path) -> None:
     scene, obj, texture = baked
     path = blender.vortx_blender.export.export_result(obj, tmp_path / "room.glb", scene.view_layers[0])
+    assert_valid_gltf(path)
     document, binary = read_glb(path)
     (primitive,) = document["meshes"][0]["primitives"]
     assert "TEXCOORD_0" in primitive["attributes"]

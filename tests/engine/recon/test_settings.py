@@ -17,7 +17,7 @@ from engine.recon.settings import BLENDER, CLI, ReconSettings, cli_flag, field_d
 
 # Flags of each command that are not reconstruction settings.
 # --quality is a preset of several settings (engine/recon/presets.py), not a setting of its own.
-RECONSTRUCT_OWN = {"help", "capture", "out", "camera_height", "refine_poses", "quiet", "quality"}
+RECONSTRUCT_OWN = {"help", "capture", "out", "camera_height", "refine_poses", "quiet", "quality", "preview"}
 BATCH_OWN = {"help", "capture", "captures", "out", "export", "camera_height", "skip_poses", "refine_poses", "vr", "ray", "ray_cpus",
              "quality"}
 # scene.vortx properties that are not ReconSettings fields: the capture summary, pose estimation,
@@ -215,12 +215,13 @@ def test_texture_settings_are_refused_without_a_textured_result(tmp_path, capsys
     import vortx_batch
 
     texture = [f for f in setting_fields(CLI) if f.metadata["textured"]]
-    assert {f.name for f in texture} == {"texture_size", "face_budget"}
+    assert {f.name for f in texture} == {"texture_size", "face_budget", "headset"}
     for f in texture:
         flags = _flag_at_default(f)
         assert main(["reconstruct", "nowhere", "--out", str(tmp_path / "room.ply"), *flags]) == 1
         err = capsys.readouterr().err
-        assert err.startswith(f"error: {cli_flag(f)} is used only by a textured result (--out room.glb or room.obj)")
+        assert err.startswith(f"error: {cli_flag(f)} is used only by a textured result (--out room.glb, room.obj or "
+                              "room.usdz)")
         with pytest.raises(SystemExit):
             vortx_batch.parse_arguments(["nowhere", "--out", str(tmp_path / "room.blend"), *flags])
         assert f"{cli_flag(f)} is used only by a textured result (--vr)" in capsys.readouterr().err

@@ -14,6 +14,7 @@ from engine.__main__ import main
 from engine.mesh_io import read_ply
 from engine.capture import Capture, Frame
 from engine.capture.writers import write_scannet
+from fixtures_gltf import assert_valid_gltf  # the Khronos glTF-Validator on every GLB written here
 from fixtures_texture import read_glb  # an independent reader: the writer is not checked with its own code
 
 DEMO = Path(__file__).resolve().parents[3] / "samples" / "demo_room"
@@ -42,6 +43,7 @@ def glb_texture(path: Path) -> np.ndarray:
 def test_reconstruct_to_glb_writes_a_light_textured_room(room, tmp_path, capsys):
     out = tmp_path / "room.glb"
     assert main(["reconstruct", str(room), "--out", str(out), *FAST]) == 0
+    assert_valid_gltf(out)
     document, _ = read_glb(out)
     faces = document["accessors"][document["meshes"][0]["primitives"][0]["indices"]]["count"] // 3
     assert 0 < faces <= 3000
@@ -76,4 +78,4 @@ def test_texture_command_errors_name_what_to_fix(room, tmp_path, capsys):
     assert main(["texture", str(room), str(tmp_path / "missing.ply"), "--out", str(tmp_path / "x.glb")]) == 1
     assert "give the mesh as a .ply file" in capsys.readouterr().err
     assert main(["texture", str(room), str(tmp_path / "missing.ply"), "--out", str(tmp_path / "x.fbx")]) == 1
-    assert "written as .glb or .obj" in capsys.readouterr().err
+    assert "written as .glb, .obj or .usdz" in capsys.readouterr().err

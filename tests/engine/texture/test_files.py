@@ -9,6 +9,7 @@ import pytest
 
 from engine.errors import VortxError
 from engine.texture.files import write_glb, write_textured, write_textured_obj
+from fixtures_gltf import assert_valid_gltf  # the Khronos glTF-Validator on every GLB written here
 from fixtures_texture import read_glb  # an independent reader: the writer is not checked with its own code
 from engine.texture.textured_mesh import TexturedMesh
 
@@ -46,6 +47,7 @@ def accessor(document, binary, index):
 def test_glb_holds_y_up_positions_flipped_uvs_and_the_png(tmp_path):
     mesh = square()
     path = write_glb(tmp_path / "room.glb", mesh)
+    assert_valid_gltf(path)
     document, binary = read_glb(path)
     primitive = document["meshes"][0]["primitives"][0]
     position = accessor(document, binary, primitive["attributes"]["POSITION"])
@@ -105,6 +107,7 @@ def test_obj_mtl_png_reference_each_other(tmp_path):
 
 def test_write_textured_picks_the_format_by_suffix(tmp_path):
     assert [p.name for p in write_textured(tmp_path / "a.glb", square())] == ["a.glb"]
+    assert_valid_gltf(tmp_path / "a.glb")
     assert [p.name for p in write_textured(tmp_path / "b.obj", square())] == ["b.obj", "b.mtl", "b_texture.png"]
-    with pytest.raises(VortxError, match=".glb or .obj"):
+    with pytest.raises(VortxError, match=".glb, .obj or .usdz"):
         write_textured(tmp_path / "c.ply", square())
