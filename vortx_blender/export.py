@@ -21,6 +21,13 @@ packed), and no COLOR_0 (glTF viewers multiply the base colour by COLOR_0, which
 texture by the photo colours a second time); OBJ gets its UVs, a .mtl and the texture copied beside
 it (<stem>_texture.png). PLY has no textures: it keeps the vertex colours.
 
+The scene's Headset preset (engine/texture/presets.py) shapes a GLB as it does the engine's: Draco
+geometry through the glTF exporter's own Draco option, KTX2 textures (KHR_texture_basisu, with a
+quarter-size PNG fallback) by rewriting the exported file with the engine's `glb_with_ktx2`. The file is
+exported under a temporary name and renamed only when complete: a failed encoder leaves nothing behind.
+- USDZ (Apple Vision Pro, Quick Look) through Blender's USD exporter: Y up, metres (meters per unit 1),
+  the texture packed into the archive, a UsdPreviewSurface material.
+
 Exporters work on the selection, so the selection and active object are set for the call and put
 back afterwards.
 """
@@ -35,8 +42,8 @@ import bpy
 
 from ..engine.errors import VortxError
 
-FORMATS = {".glb": "GLB", ".gltf": "glTF", ".ply": "PLY", ".obj": "OBJ"}
-FILE_GLOB = "*.glb;*.gltf;*.ply;*.obj"
+FORMATS = {".glb": "GLB", ".gltf": "glTF", ".ply": "PLY", ".obj": "OBJ", ".usdz": "USDZ"}
+FILE_GLOB = "*.glb;*.gltf;*.ply;*.obj;*.usdz"
 
 
 @contextmanager
@@ -102,15 +109,49 @@ def _texture_file_beside(obj: bpy.types.Object, path: Path) -> Iterator[None]:
             image.filepath_raw = filepath
 
 
-def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types.ViewLayer | None = None) -> Path:
-    """Write `obj` to `path`; the format comes from the extension (.glb, .gltf, .ply, .obj).
+@contextmanager
+def _texture_files_on_disk(obj: bpy.types.Object) -> Iterator[None]:
+    """Blender's USD exporter puts a texture into the .usdz only from an image file on disk, and a baked
+    texture is packed into the .blend: while the exporter runs, the material's image nodes show a
+    temporary image loaded from the packed PNG written to a temporary folder; everything is put back."""
+    import tempfile
+
+    swapped = []  # (node, its image, the temporary image)
+    with tempfile.TemporaryDirectory(prefix="vortx_usdz_") as folder:
+        try:
+            for material in obj.data.materials:
+                if material is None or material.node_tree is None:
+                    continue
+                for node in material.node_tree.nodes:
+                    image = getattr(node, "image", None) if node.type == "TEX_IMAGE" else None
+                    if image is None or image.packed_file is None:
+                        continue
+                    target = Path(folder) / f"{bpy.path.clean_name(image.name)}.png"
+                    target.write_bytes(image.packed_file.data)
+                    loaded = bpy.data.images.load(str(target))
+                    loaded.colorspace_settings.name = image.colorspace_settings.name
+                    swapped.append((node, image, loaded))
+                    node.image = loaded
+            yield
+        finally:
+            for node, image, loaded in swapped:
+                node.image = image
+                bpy.data.images.remove(loaded)
+
+
+def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types.ViewLayer | None = None,
+                  headset: str | None = None) -> Path:
+    """Write `obj` to `path`; the format comes from the extension (.glb, .gltf, .ply, .obj, .usdz).
+    headset: the preset that shapes a .glb (None: the scene's Headset setting).
 
     Raises VortxError for an unknown extension, a non-mesh object or a failed export.
     """
     path = Path(bpy.path.abspath(str(path)))
     kind = FORMATS.get(path.suffix.lower())
     if kind is None:
-        raise VortxError(f"cannot export to '{path.name}': use a .glb, .gltf, .ply or .obj file name")
+        raise VortxError(f"cannot export to '{path.name}': use a .glb, .gltf, .ply, .obj or .usdz file name")
+    if kind == "GLB":
+        return _export_glb_for_headset(obj, path, view_layer, headset)
     if obj.type != "MESH":
         raise VortxError(f"'{obj.name}' is not a mesh")
     from .result import is_textured
@@ -133,6 +174,16 @@ def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types
                     export_colors=not textured, export_materials=textured, path_mode="STRIP" if textured else "AUTO",
                     export_triangulated_mesh=True,
                 )
+        elif kind == "USDZ":
+            with _texture_files_on_disk(obj) if textured else nullcontext():
+                outcome = bpy.ops.wm.usd_export(
+                    filepath=str(path), selected_objects_only=True, export_uvmaps=textured, export_normals=True,
+                    export_mesh_colors=not textured, export_materials=True, generate_preview_surface=True,
+                    export_textures_mode="NEW", convert_orientation=True, export_global_forward_selection="NEGATIVE_Z",
+                    export_global_up_selection="Y", convert_scene_units="METERS", triangulate_meshes=True,
+                    export_animation=False, export_lights=False, export_cameras=False, convert_world_material=False,
+                    evaluation_mode="VIEWPORT",
+                )
         else:
             with _confidence_for_gltf(obj):
                 outcome = _export_gltf(path, kind, textured)
@@ -141,14 +192,66 @@ def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types
     return path
 
 
-def _export_gltf(path: Path, kind: str, textured: bool) -> set[str]:
+def _export_gltf(path: Path, kind: str, textured: bool, draco: bool = False) -> set[str]:
     return bpy.ops.export_scene.gltf(
         filepath=str(path), export_format="GLB" if kind == "GLB" else "GLTF_SEPARATE", use_selection=True,
         export_yup=True, export_apply=True, export_normals=True, export_texcoords=textured,
         export_vertex_color="NONE" if textured else "ACTIVE", export_materials="EXPORT",
         export_image_format="AUTO", export_extras=True, export_attributes=True,
         export_cameras=False, export_lights=False, export_animations=False,
+        export_draco_mesh_compression_enable=draco,
+        **({"export_draco_position_quantization": 14, "export_draco_texcoord_quantization": 14,
+            "export_draco_normal_quantization": 10, "export_draco_mesh_compression_level": 7} if draco else {}),
     )
+
+
+def headset_options(obj: bpy.types.Object, headset: str | None):
+    """The texture options of `headset` (None: the Headset setting of a scene holding `obj`)."""
+    from ..engine.texture.options import TextureOptions
+    from ..engine.texture.presets import with_preset
+
+    if headset is None:
+        from .reconstruct import recon_settings_from_scene
+
+        scenes = list(obj.users_scene) or [bpy.context.scene]
+        settings = getattr(scenes[0], "vortx", None)
+        headset = recon_settings_from_scene(settings, with_weights=False).headset if settings is not None else "desktop"
+    return with_preset(TextureOptions(), headset)
+
+
+def _export_glb_for_headset(obj: bpy.types.Object, path: Path, view_layer: bpy.types.ViewLayer | None,
+                            headset: str | None) -> Path:
+    """A GLB shaped by the headset preset (Draco, KTX2), exported under a temporary name and renamed."""
+    from ..engine.texture.files import staged
+    from ..engine.texture.ktx2 import glb_with_ktx2
+    from .result import is_textured
+
+    options = headset_options(obj, headset)
+    needed_by = f"the '{options.preset}' headset preset"
+    # Draco: Blender's glTF exporter has its own Draco library. KTX2: the encoder is checked first.
+    if options.texture_format != "png" and is_textured(obj):
+        from ..engine.texture.encoders import basisu_path
+
+        basisu_path(needed_by)
+    if view_layer is None:
+        view_layer = bpy.context.view_layer
+    if obj.type != "MESH":
+        raise VortxError(f"'{obj.name}' is not a mesh")
+    textured = is_textured(obj)
+    with staged([path]) as (temporary,):
+        exported = temporary.with_name(temporary.name + ".glb")  # the exporter wants the suffix
+        try:
+            with _only_selected(obj, view_layer), _photo_colours_shown(obj), _confidence_for_gltf(obj):
+                outcome = _export_gltf(exported, "GLB", textured, draco=options.geometry == "draco")
+            if "FINISHED" not in outcome or not exported.is_file():
+                raise VortxError(f"the GLB exporter did not write {path}")
+            data = exported.read_bytes()
+            if options.texture_format != "png" and textured:
+                data = glb_with_ktx2(data, options.texture_format, needed_by)
+            temporary.write_bytes(data)
+        finally:
+            exported.unlink(missing_ok=True)
+    return path
 
 
 @contextmanager

@@ -135,3 +135,41 @@ def test_glb_carries_the_confidence_layer(blender, baked, tmp_path) -> None:
     values = np.empty(len(obj.data.vertices), np.float32)
     obj.data.attributes["observations"].data.foreach_get("value", values)
     assert set(np.unique(exported)) == set(np.unique(values)) and {"_STEREO_CONFIDENCE", "_COMPLETED"} <= set(primitive["attributes"])
+
+
+def test_glb_for_a_standalone_headset_has_draco_and_ktx2_and_passes_the_validator(blender, baked, tmp_path) -> None:
+    import bpy
+
+    scene, obj, texture = baked
+    path = blender.vortx_blender.export.export_result(obj, tmp_path / "room.glb", scene.view_layers[0],
+                                                      headset="standalone")
+    assert_valid_gltf(path)  # the KTX2 image checked by the fixture itself (the validator does not know it yet)
+    document, binary = read_glb(path)
+    (primitive,) = document["meshes"][0]["primitives"]
+    assert "KHR_draco_mesh_compression" in primitive["extensions"]
+    assert "KHR_texture_basisu" in document["textures"][0]["extensions"]
+    assert [p.name for p in tmp_path.iterdir()] == ["room.glb"]  # no temporary file left
+    faces = len(obj.data.polygons)
+    bpy.ops.wm.read_homefile(use_empty=True)
+    assert "FINISHED" in bpy.ops.import_scene.gltf(filepath=str(path))  # Blender reads its own Draco back
+    (imported,) = [o for o in bpy.context.scene.objects if o.type == "MESH"]
+    assert len(imported.data.polygons) == faces
+
+
+def test_usdz_export_opens_in_usd_with_its_texture_in_metres(blender, baked, tmp_path) -> None:
+    from pxr import Ar, Usd, UsdGeom, UsdShade
+
+    scene, obj, texture = baked
+    path = blender.vortx_blender.export.export_result(obj, tmp_path / "room.usdz", scene.view_layers[0])
+    stage = Usd.Stage.Open(str(path))
+    assert UsdGeom.GetStageUpAxis(stage) == "Y" and UsdGeom.GetStageMetersPerUnit(stage) == 1.0
+    (mesh,) = [UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    world = UsdGeom.Xformable(mesh).ComputeLocalToWorldTransform(Usd.TimeCode.Default())
+    points = np.array([world.Transform(p) for p in mesh.GetPointsAttr().Get()])
+    assert np.ptp(points, axis=0) == pytest.approx([3.0, 2.5, 3.0], abs=0.01)  # the 3 x 3 x 2.5 m room, Y up
+    material, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
+    files = [UsdShade.Shader(p).GetInput("file").Get() for p in Usd.PrimRange(material.GetPrim())
+             if p.IsA(UsdShade.Shader) and UsdShade.Shader(p).GetIdAttr().Get() == "UsdUVTexture"]
+    assert len(files) == 1
+    data = bytes(Ar.GetResolver().OpenAsset(Ar.ResolvedPath(files[0].resolvedPath)).GetBuffer())
+    assert decode_png(data).shape == texture.shape
