@@ -25,7 +25,7 @@ from ..vortx_blender.frame import capture_frame_note
 from ..vortx_blender.jobs import Job
 from ..engine.recon.settings import BLENDER, setting_fields
 from ..vortx_blender.properties import CUSTOM_QUALITY, POSES_BY_SFM, blender_name, recon_property_names
-from ..vortx_blender.texture import bake_summary
+from ..vortx_blender.texture import bake_summary, headset_budget_text
 from . import sidebar
 
 CATEGORY = "VoRTX"
@@ -164,7 +164,7 @@ def quality_hint(settings: Any) -> Optional[str]:
     if settings.quality == CUSTOM_QUALITY:
         return None
     chosen = preset(settings.quality.lower())
-    return f"{chosen.time_text()} (demo room)" if chosen.demo_seconds is not None else "Not measured yet"
+    return f"Demo room: {chosen.time_text()}" if chosen.demo_seconds is not None else "Not measured yet"
 
 
 def draw_reconstruction(layout: Any, settings: Any, job: Optional[Job]) -> None:
@@ -229,7 +229,7 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
     col = layout.column(align=True)
     for name in textured_property_names():  # texture size, face budget, ...: what Bake Texture reads
         col.prop(settings, name)
-    layout.label(text=VR_PRESET_TEXT, icon="INFO")
+    layout.label(text=headset_budget_text(settings.id_data), icon="INFO")  # the Headset preset's budget (issue 28)
     layout.operator("vortx.bake_texture", icon="TEXTURE")
     if job is not None and job.title in RESULT_JOBS:
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")

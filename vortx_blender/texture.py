@@ -248,6 +248,7 @@ def texture_provenance(request: BakeRequest, outcome: BakeOutcome) -> dict[str, 
     return {
         "texture_size": options.texture_size,
         "face_budget": options.face_budget,
+        "headset": options.preset,
         "occlusion_tolerance": options.occlusion_tolerance,
         "photos": len(request.capture.posed_frames),
         "created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
@@ -258,6 +259,22 @@ def texture_provenance(request: BakeRequest, outcome: BakeOutcome) -> dict[str, 
 def _plain(value: Any) -> Any:
     # numpy scalars and arrays in the engine's stats
     return value.tolist() if hasattr(value, "tolist") else str(value)
+
+
+def headset_budget_text(scene: "bpy.types.Scene") -> str:
+    """One line for the Result panel: what Bake Texture and Export will make under the scene's Headset
+    preset (its budget applied to Texture Size and Face Budget), e.g. "Standalone Headset: 2048 px,
+    100k faces, KTX2 ETC1S, Draco"."""
+    from ..engine.texture.presets import preset
+
+    try:
+        options = recon_settings_from_scene(scene.vortx, with_weights=False).texture_options
+    except VortxError as error:
+        return str(error)
+    faces = f"{options.face_budget:,} faces" if options.face_budget else "all faces"
+    texture = {"png": "PNG", "ktx2-etc1s": "KTX2 ETC1S", "ktx2-uastc": "KTX2 UASTC"}[options.texture_format]
+    geometry = ", Draco" if options.geometry == "draco" else ""
+    return f"{preset(options.preset).label}: {options.texture_size} px, {faces}, {texture}{geometry}"
 
 
 def bake_summary(obj: "bpy.types.Object") -> Optional[dict[str, Any]]:

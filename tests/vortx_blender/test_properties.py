@@ -79,6 +79,7 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
         "quality": "CUSTOM",  # read from the stereo settings above (no preset has them); choosing Custom sets nothing
         "texture_size": 2048,
         "face_budget": 50000,
+        "headset": "VISION-PRO",
     }
     settings = empty_scene.vortx
     for name, value in values.items():

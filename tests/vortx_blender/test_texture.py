@@ -405,3 +405,18 @@ def test_cycles_renders_the_baked_texture(blender, capture_dir, tmp_path) -> Non
         return (image / np.maximum(image.sum(axis=2, keepdims=True), 1.0)).ravel()
 
     assert np.corrcoef(chroma(render), chroma(photo))[0, 1] > 0.8
+
+
+def test_the_headset_preset_is_the_bakes_budget_and_the_panel_says_so(blender, capture_dir, engine_spy) -> None:
+    import bpy
+
+    scene, obj = textured_scene(blender, capture_dir, texture_size=1024, face_budget=0)
+    texture = blender.vortx_blender.texture
+    assert texture.headset_budget_text(scene) == "Desktop VR: 1024 px, all faces, PNG"
+    scene.vortx.headset = "WEB"  # the Result panel's Headset menu
+    assert texture.headset_budget_text(scene) == "Web: 1024 px, 50,000 faces, KTX2 ETC1S, Draco"
+    scene.vortx.texture_size = 512
+    assert bpy.ops.vortx.bake_texture() == {"FINISHED"}
+    (call,) = engine_spy
+    assert (call.options.texture_size, call.options.face_budget, call.options.preset) == (512, 50_000, "web")
+    assert texture.bake_summary(obj)["headset"] == "web"
