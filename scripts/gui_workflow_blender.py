@@ -2,11 +2,13 @@
 panels as a user drives them; runs inside Blender (`blender --python scripts/gui_workflow_blender.py
 -- --photos DIR --out DIR`), started by scripts/gui_workflow.py under Xvfb.
 
-Import Capture -> Estimate Poses -> Reconstruct with VoRTX (the panel's voxel size and views per
-tile, tiles shown while it runs; then Esc, which must leave the scene unchanged: the network takes many
-minutes per tile on a loaded CPU) -> Reconstruct with Stereo, the default (the panels' voxel size and
-stereo views) -> Show Observation -> Bake Texture -> Export Result (GLB) -> the sidebar scrolled to its
-last panels. The long jobs are invoked as the panel's buttons invoke them ('INVOKE_DEFAULT': modal, with
+Import Capture -> Estimate Poses (the Capture panel's status lines, then its Details sub-panel opened)
+-> Reconstruct with VoRTX (the panel's voxel size and views per tile, tiles shown while it runs; then
+Esc, which must leave the scene unchanged: the network takes many minutes per tile on a loaded CPU) ->
+Reconstruct with Stereo, the default, at the Preview quality chosen in the panel -> Show Observation ->
+Bake Texture -> Export Result (GLB) -> the closed sub-panels opened and the sidebar scrolled to its last
+panels. The panels stay as a new user finds them (sub-panels closed by default stay closed) until the
+last step, so the first screenshots show what fits on the screen. The long jobs are invoked as the panel's buttons invoke them ('INVOKE_DEFAULT': modal, with
 progress in the status bar and the sidebar), so the window keeps drawing while they run. After each
 step the scene is checked; screenshots of the VoRTX sidebar and of the whole window are taken with
 ImageMagick's `import` (Blender's own screenshot operator gives black images with software GL).
@@ -29,14 +31,19 @@ from pathlib import Path
 import bpy
 
 ADDON = "bl_ext.user_default.vortx"
-# Child panels closed by default: opened before the sidebar first draws, as a user clicks them open,
-# so the screenshots show every panel.
-OPEN_PANELS = ("VORTX_PT_pose_settings", "VORTX_PT_model", "VORTX_PT_stereo", "VORTX_PT_advanced")
-# The settings typed into the panels (small: the run stays a few minutes on two CPU cores).
+# Child panels closed by default, opened as a user clicks them open: Details after Estimate Poses, the
+# others for the last screenshot, so it shows every panel.
+DETAILS_PANEL = "VORTX_PT_capture_details"
+OPEN_PANELS = ("VORTX_PT_pose_settings", "VORTX_PT_model", "VORTX_PT_advanced")
+# The settings chosen in the panels (small: the run stays a few minutes on two CPU cores).
 VORTX_VOXEL_SIZE = 0.08
 VORTX_VIEW_COUNT = 10
 VOXEL_SIZE = 0.05
-STEREO_VIEWS = 24
+QUALITY = "PREVIEW"
+# Texts whose width in this window (Blender's blf, the UI font) the report records beside the budgets
+# of ui/sidebar.py, which tests/ui/test_label_widths.py measures with the bpy module.
+MEASURED_TEXTS = ("Max room size X", "Min Match Score", "Source Views", "Clean Up Result",
+                  "Scale: metric, +-12 %, from the floor")
 TEXTURE_SIZE = 1024
 FACE_BUDGET = 40000
 JOB_TIMEOUT_S = 1200
@@ -144,6 +151,32 @@ def show_vortx_tab():
     subprocess.run(["xdotool", "mousemove", "5", "5"], check=True, timeout=30)  # no hover highlight in the shots
 
 
+def open_panels(names) -> None:
+    """Open sub-panels closed by default, as a user clicks their headers: Python cannot open a drawn
+    panel, but a panel type registered again starts in its default state, here open. All the add-on's
+    panels are registered again, parents first, so children stay under their parents and in order."""
+    panels = addon("ui.panels")
+    for cls in reversed(panels.classes):
+        bpy.utils.unregister_class(cls)
+    for name in names:
+        cls = getattr(panels, name)
+        cls.bl_options = set(cls.bl_options) - {"DEFAULT_CLOSED"}
+    for cls in panels.classes:
+        bpy.utils.register_class(cls)
+
+
+def measure_sidebar() -> dict:
+    """The sidebar's size and the UI's text widths in this window (blf at the UI font's size)."""
+    import blf
+
+    region = sidebar()
+    style = bpy.context.preferences.ui_styles[0]
+    points = getattr(getattr(style, "widget", None), "points", 11)  # the widgets' text (ThemeStyle.widget)
+    blf.size(0, points * bpy.context.preferences.system.ui_scale)
+    return {"width": region.width, "height": region.height, "ui_scale": bpy.context.preferences.system.ui_scale,
+            "font_points": points, "text_widths": {t: blf.dimensions(0, t)[0] for t in MEASURED_TEXTS}}
+
+
 def wait_for_job(title: str):
     """Yield until the add-on's job is over (the modal operator applies the result on its last tick)."""
     jobs = addon("vortx_blender.jobs")
@@ -162,12 +195,6 @@ def wait_for_job(title: str):
 def workflow():
     yield 3.0  # the window's first draws
     begin("open the VoRTX sidebar")
-    panels = addon("ui.panels")
-    for name in OPEN_PANELS:
-        cls = getattr(panels, name)
-        bpy.utils.unregister_class(cls)
-        cls.bl_options = set(cls.bl_options) - {"DEFAULT_CLOSED"}
-        bpy.utils.register_class(cls)
     # A new file's cube, light and camera would sit inside the room: a user deletes them first.
     for obj in list(bpy.context.scene.objects):
         bpy.data.objects.remove(obj)
@@ -181,6 +208,7 @@ def workflow():
     dependencies = addon("vortx_blender.dependencies")
     missing = [s.describe() for s in dependencies.status(refresh=True) if s.needs_install]
     check(not missing, f"the engine's packages are installed (missing: {missing})")
+    REPORT["sidebar"] = measure_sidebar()
     shot("gui_01_start", "the VoRTX tab before a capture is imported", True)
     end()
 
@@ -211,8 +239,13 @@ def workflow():
     REPORT["posed"] = settings.posed_frame_count
     with override():
         bpy.ops.view3d.view_all()  # the cameras in view, as a user frames them (Home)
+    check(settings.pose_source == "SfM", f"the Poses line says SfM made them ({settings.pose_source!r})")
     yield from settle()
-    shot("gui_03_posed", "Capture panel after Estimate Poses", True)
+    shot("gui_03_posed", "Capture panel after Estimate Poses: one line each for frames, poses and scale; "
+         "the Reconstruction panel below it on a 1600 x 1000 screen", True)
+    open_panels([DETAILS_PANEL])
+    yield from settle()
+    shot("gui_03_details", "the Details sub-panel opened: the pose status and the scale's derivation in full", True)
     end()
 
     begin("Reconstruct with VoRTX, tiles shown, then Esc")
@@ -251,10 +284,14 @@ def workflow():
     check(overlay is None or not overlay.tiles, "the cancelled run's tiles are gone from the viewport")
     end()
 
-    begin("Reconstruct with Stereo (the default method)")
+    begin("Reconstruct with Stereo (the default method) at the Preview quality")
     settings.method = "STEREO"
     settings.voxel_size = VOXEL_SIZE
-    settings.stereo_views = STEREO_VIEWS
+    settings.quality = QUALITY  # chosen in the panel's Quality menu
+    presets = addon("engine.recon.presets")
+    expected = presets.preset_values(QUALITY.lower())
+    check(settings.quality == QUALITY and settings.stereo_views == expected["stereo_views"],
+          f"Quality {QUALITY} sets the stereo settings ({settings.stereo_views} views, {settings.stereo_image_size} px)")
     yield from settle()
     with override():
         outcome = bpy.ops.vortx.reconstruct("INVOKE_DEFAULT")
@@ -265,8 +302,10 @@ def workflow():
     result = objects[0]
     recorded = json.loads(result[results.PROP_SETTINGS])
     check(recorded.get("method") == "stereo", f"the result records the stereo method ({recorded.get('method')})")
-    check(abs(recorded.get("voxel_size", 0) - VOXEL_SIZE) < 1e-6 and recorded.get("stereo_views") == STEREO_VIEWS,
-          f"the result records the panels' voxel size and view count ({recorded.get('voxel_size')}, {recorded.get('stereo_views')})")
+    check(abs(recorded.get("voxel_size", 0) - VOXEL_SIZE) < 1e-6
+          and all(recorded.get(key) == value for key, value in expected.items()),
+          f"the result records the panel's voxel size and the preset's settings ({recorded.get('voxel_size')}, "
+          f"{ {key: recorded.get(key) for key in expected} })")
     check(len(result.data.polygons) > 1000, f"the stereo mesh has faces ({len(result.data.polygons)})")
     REPORT["stereo_faces"] = len(result.data.polygons)
     bpy.ops.object.select_all(action="DESELECT")
@@ -331,14 +370,16 @@ def workflow():
     REPORT["glb_bytes"] = len(data)
     end()
 
-    begin("scroll the sidebar to its last panels")
+    begin("open the closed sub-panels and scroll the sidebar to its last panels")
+    open_panels(list(OPEN_PANELS))
+    yield from settle()
     window, _, _ = view3d()
     region = sidebar()
     x, y = region.x + region.width // 2, window.height - (region.y + region.height // 2)
     subprocess.run(["xdotool", "mousemove", str(x), str(y), "click", "--repeat", "40", "--delay", "30", "5",
                     "mousemove", "5", "5"], check=True, timeout=60)  # the mouse wheel, as a user scrolls
     yield from settle()
-    shot("gui_08_sidebar_end", "the Model, Stereo and Advanced panels (the sidebar scrolled down)", True)
+    shot("gui_08_sidebar_end", "the Model, Advanced and Stereo panels opened (the sidebar scrolled down)", True)
     end()
 
 

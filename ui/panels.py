@@ -18,7 +18,6 @@ import bpy
 
 from ..engine.poses.scale import SOURCE_FLOOR, SOURCE_FLOOR_AND_CEILING, SOURCE_GUESS
 from ..engine.recon.presets import preset
-from ..engine.texture.options import TextureOptions
 from ..vortx_blender import jobs
 from ..vortx_blender import result as results
 from ..vortx_blender.frame import capture_frame_note
@@ -32,9 +31,6 @@ CATEGORY = "VoRTX"
 # Jobs whose progress the Reconstruction and Result panels show; the Capture panel shows the others.
 RECONSTRUCTION_JOBS = ("Reconstruct", "Preview Tiles")
 RESULT_JOBS = ("Bake Texture",)
-# The Result panel's line about the bake's defaults (engine/texture/options.py); Texture Size's tooltip
-# says what mobile headsets want.
-VR_PRESET_TEXT = f"VR preset: {TextureOptions.face_budget // 1000}k faces, {TextureOptions.texture_size} px"
 
 # The Scale line's words for where the scale came from (scene.vortx.scale_source).
 SCALE_WORDS = {
@@ -208,7 +204,8 @@ def draw_tiles(layout: Any, settings: Any) -> None:
     row.operator("vortx.bake_tiles", icon="MOD_WIREFRAME")
 
 
-def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = None, job: Optional[Job] = None) -> None:
+def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = None, job: Optional[Job] = None,
+                         width_px: float = sidebar.CONTENT_PX) -> None:
     """`result`: the result object the observation toggle and Bake Texture act on (results.shown_result),
     or None; `job`: the running job (its progress is shown here when it is a bake)."""
     _settings_layout(layout)
@@ -229,7 +226,8 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
     col = layout.column(align=True)
     for name in textured_property_names():  # texture size, face budget, ...: what Bake Texture reads
         col.prop(settings, name)
-    layout.label(text=headset_budget_text(settings.id_data), icon="INFO")  # the Headset preset's budget (issue 28)
+    # The Headset preset's budget (issue 28), wrapped whole: a standalone headset's line is two lines long.
+    paragraph(layout.column(align=True), headset_budget_text(settings.id_data), width_px, "INFO")
     layout.operator("vortx.bake_texture", icon="TEXTURE")
     if job is not None and job.title in RESULT_JOBS:
         layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
@@ -337,7 +335,7 @@ class VORTX_PT_result(_ReconstructionChild):
 
     def draw(self, context: bpy.types.Context) -> None:
         draw_result_settings(self.layout, context.scene.vortx, results.shown_result(context.scene, context.active_object),
-                             jobs.active_job())
+                             jobs.active_job(), sidebar.content_px(context))
 
 
 class VORTX_PT_model(_ReconstructionChild):

@@ -22,8 +22,10 @@ from .settings import (ReconSettings, cli_flag, field_default, given_settings, r
 
 # The demo room (samples/demo_room, 36 photos of 320 x 240) posed as `make demo` poses it
 # (`python -m engine poses samples/demo_room/images`), then
-# `python -m engine reconstruct <posed> --quality NAME --out room.ply` on 2 shared CPU cores.
-DEMO_MACHINE = "the demo room's 36 photos, 2 CPU cores"
+# `python -m engine reconstruct <posed> --quality NAME --out room.ply`: wall seconds on this project's
+# 2-core machine shared with other jobs (2026-12-03, load average 7-12: on an idle machine about a
+# third of that; CPU seconds: Preview 64, Standard 172).
+DEMO_MACHINE = "the demo room's 36 photos, 2 shared CPU cores"
 
 
 @dataclass(frozen=True)
@@ -55,11 +57,11 @@ PRESETS: tuple[QualityPreset, ...] = (
         "preview", "Preview",
         {"stereo_matcher": MATCHER_FAST, "stereo_image_size": 160, "stereo_views": 16},
         "Fast matcher, 160 px stereo photos, 16 depth maps: a quick look at the room",
-        demo_seconds=None),
+        demo_seconds=152),
     QualityPreset(
         "standard", "Standard", {},
         "The default settings",
-        demo_seconds=None),
+        demo_seconds=256),
     QualityPreset(
         "high", "High",
         {"stereo_matcher": MATCHER_PATCHMATCH, "stereo_image_size": 320},

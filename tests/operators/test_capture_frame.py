@@ -291,8 +291,10 @@ def test_capture_coordinates_are_refused_for_photos_without_poses(blender, given
     calls: list = []
     importlib.import_module(f"{blender.__name__}.ui.panels").draw_capture(RecordingLayout(calls), settings, None)
     assert ("set", {"enabled": False}) in calls
-    texts = " ".join(c[1].get("text") or "" for c in calls if c[0] == "label")
-    assert "No capture coordinates: no frame of the capture has a pose" in texts
+    # One line says so; hovering it (its tooltip) says why.
+    (note,) = [c[1] for c in calls if c[0] == "operator" and c[1].get("text") == "No capture coordinates"]
+    assert note["operator"] == "vortx.explain"
+    assert note["properties"]["text"] == "No capture coordinates: no frame of the capture has a pose"
     assert bpy.ops.vortx.estimate_poses.poll()
 
 

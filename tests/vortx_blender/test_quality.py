@@ -55,7 +55,7 @@ def test_the_panel_shows_the_presets_with_their_measured_time(blender, empty_sce
         calls: list = []
         blender.ui.panels.draw_reconstruction(RecordingLayout(calls), settings, None)
         hints = [c[1] for c in calls if c[0] == "label" and c[1].get("icon") == "TIME"]
-        expected = f"{chosen.time_text()} (demo room)" if chosen.demo_seconds is not None else "Not measured yet"
+        expected = f"Demo room: {chosen.time_text()}" if chosen.demo_seconds is not None else "Not measured yet"
         assert [h["text"] for h in hints] == [expected]
     settings.stereo_views = 3
     calls = []
