@@ -151,18 +151,33 @@ def show_vortx_tab():
     subprocess.run(["xdotool", "mousemove", "5", "5"], check=True, timeout=30)  # no hover highlight in the shots
 
 
+OPENED: set = set()  # the sub-panels opened so far
+REGISTERED: list = []  # the panel classes registered in their place
+
+
 def open_panels(names) -> None:
-    """Open sub-panels closed by default, as a user clicks their headers: Python cannot open a drawn
-    panel, but a panel type registered again starts in its default state, here open. All the add-on's
-    panels are registered again, parents first, so children stay under their parents and in order."""
+    """Open sub-panels closed by default, as a user clicks their headers. Python can neither open a drawn
+    panel nor reset it (one registered again keeps its state), so each is registered again under a new
+    idname ("..._open", its children moved under it) without DEFAULT_CLOSED: a new panel, open. All the
+    add-on's panels are registered again, parents first, so they keep their order."""
     panels = addon("ui.panels")
-    for cls in reversed(panels.classes):
+    for cls in reversed(REGISTERED or panels.classes):
         bpy.utils.unregister_class(cls)
-    for name in names:
-        cls = getattr(panels, name)
-        cls.bl_options = set(cls.bl_options) - {"DEFAULT_CLOSED"}
+    OPENED.update(names)
+    REGISTERED.clear()
     for cls in panels.classes:
+        attributes = {}
+        if cls.__name__ in OPENED:
+            attributes = {"bl_idname": f"{cls.bl_idname}_open",
+                          "bl_options": set(getattr(cls, "bl_options", set())) - {"DEFAULT_CLOSED"}}
+        parent = getattr(cls, "bl_parent_id", "")
+        if parent in OPENED:
+            attributes["bl_parent_id"] = f"{parent}_open"
+        if attributes:
+            attributes.setdefault("bl_idname", f"{cls.bl_idname}_moved")
+            cls = type(attributes["bl_idname"], (cls,), attributes)
         bpy.utils.register_class(cls)
+        REGISTERED.append(cls)
 
 
 def measure_sidebar() -> dict:

@@ -101,9 +101,13 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job], width_px: float
     if settings.capture_path:
         box = layout.box()
         col = box.column(align=True)
+        # Every line of the box is a status line with a tooltip, so they all line up.
         name = bpy.path.basename(settings.capture_path.rstrip("/\\")) or settings.capture_path
-        col.label(text=sidebar.shorten(name, sidebar.line_px(width_px, icon=True, boxed=True)), icon="IMAGE_DATA")
-        col.label(text=f"Frames: {settings.frame_count}, {settings.resolution_x} x {settings.resolution_y}")
+        status_line(col, sidebar.shorten(name, sidebar.line_px(width_px, icon=True, boxed=True)), "IMAGE_DATA",
+                    settings.capture_path)
+        status_line(col, f"Frames: {settings.frame_count}, {settings.resolution_x} x {settings.resolution_y}",
+                    tooltip=f"{settings.frame_count} photos of {settings.resolution_x} x {settings.resolution_y} px "
+                            f"({settings.capture_format})")
         status_line(col, poses_line(settings), tooltip=settings.pose_status)
         if settings.posed_frame_count:
             text, guessed = scale_line(settings)

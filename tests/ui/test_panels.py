@@ -77,8 +77,10 @@ def test_capture_panel_before_and_after_import(blender, empty_scene) -> None:
     settings.capture_path = "/captures/living-room/"
     settings.capture_format = "transforms"
     settings.frame_count, settings.resolution_x, settings.resolution_y = 60, 1920, 1080
-    texts = [line["text"] for line in _lines(_draw("VORTX_PT_capture", bpy.context))]
-    assert texts == ["living-room", "Frames: 60, 1920 x 1080", "Poses: none (Estimate Poses)"]
+    lines = _lines(_draw("VORTX_PT_capture", bpy.context))
+    assert [line["text"] for line in lines] == ["living-room", "Frames: 60, 1920 x 1080", "Poses: none (Estimate Poses)"]
+    assert lines[0]["tooltip"] == "/captures/living-room/"  # the whole path on hovering the name
+    assert lines[1]["tooltip"] == "60 photos of 1920 x 1080 px (transforms)"
 
     settings.posed_frame_count, settings.pose_source, settings.poses_metric = 60, "given", True
     settings.pose_status = "All 60 posed (transforms)"
