@@ -79,3 +79,28 @@ def test_texture_command_errors_name_what_to_fix(room, tmp_path, capsys):
     assert "give the mesh as a .ply file" in capsys.readouterr().err
     assert main(["texture", str(room), str(tmp_path / "missing.ply"), "--out", str(tmp_path / "x.fbx")]) == 1
     assert "written as .glb, .obj or .usdz" in capsys.readouterr().err
+
+
+def test_texture_command_writes_a_headsets_glb_with_its_preview_and_a_usdz(room, tmp_path, capsys):
+    from pxr import Usd, UsdGeom
+
+    ply = tmp_path / "room.ply"
+    untextured = FAST[:FAST.index("--texture-size")] + ["--quiet"]
+    assert main(["reconstruct", str(room), "--out", str(ply), *untextured]) == 0
+    bake = ["--texture-size", "512", "--voxel-size", "0.08", "--quiet"]
+    out = tmp_path / "room.glb"
+    assert main(["texture", str(room), str(ply), "--out", str(out), "--headset", "standalone", "--preview", *bake]) == 0
+    assert "(standalone headset preset)" in capsys.readouterr().out
+    assert_valid_gltf(out)
+    document, _ = read_glb(out)
+    assert "KHR_draco_mesh_compression" in document["meshes"][0]["primitives"][0]["extensions"]
+    assert "KHR_texture_basisu" in document["textures"][0]["extensions"]
+    assert 'src="room.glb"' in (tmp_path / "room.html").read_text()
+    usdz = tmp_path / "room.usdz"
+    assert main(["texture", str(room), str(ply), "--out", str(usdz), *bake]) == 0
+    stage = Usd.Stage.Open(str(usdz))
+    (mesh,) = [UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    extent = np.ptp(np.array(mesh.GetPointsAttr().Get()), axis=0)
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0 and 2.0 < extent.max() < 8.0  # a room, in metres
+    assert main(["texture", str(room), str(ply), "--out", str(tmp_path / "x.usdz"), "--preview", *bake]) == 1
+    assert "the preview page shows a .glb" in capsys.readouterr().err
