@@ -34,6 +34,16 @@ DROPDOWN_PX = 20  # an enum field's arrow
 CHECKBOX_PX = 22  # a checkbox before its text
 FONT_POINTS = 11  # the UI font size at UI scale 1 (Blender's default widget text)
 
+# Heights, measured in the same window on a 1600 x 1000 screen (docs/gui_03_posed.png): the sidebar is
+# 822 px high in Blender's default Layout workspace; a panel header takes 30 px, a sub-panel's 26, a
+# row (button, setting, label) 25.5, a line of an aligned column in a box 20.5 and the box 12 more.
+SIDEBAR_HEIGHT_PX = 822
+HEADER_PX = 30
+SUB_HEADER_PX = 26
+ROW_PX = 25.5
+BOX_LINE_PX = 20.5
+BOX_PAD_PX = 12
+
 
 def text_width(text: str) -> float:
     """`text`'s width in pixels at UI scale 1, as Blender draws it in a panel (the UI font, 11 pt)."""

@@ -224,3 +224,31 @@ def test_the_check_finds_a_label_that_is_cut(blender, empty_scene) -> None:
     cut = [text for text, budget, _ in texts_and_budgets(blender, calls) if sidebar.text_width(text) > budget]
     assert cut == ["Min Match Score", "Stereo Image Size",
                    "metric scale x0.993 +-12 % from the camera height over the floor (sparse points)"]
+
+
+def _height(sidebar: Any, node: Node) -> float:
+    """The height of a drawn layout: rows one under the other, a box's aligned lines closer together."""
+    if node.kind == "row":
+        return sidebar.ROW_PX
+    if node.kind == "box":
+        lines = sum(len(child.items) if isinstance(child, Node) else 1 for child in node.items)
+        return lines * sidebar.BOX_LINE_PX + sidebar.BOX_PAD_PX
+    return sum(_height(sidebar, item) if isinstance(item, Node) else sidebar.ROW_PX for item in node.items)
+
+
+def test_the_capture_panel_leaves_the_reconstruction_panel_on_a_1000_px_screen(blender, empty_scene) -> None:
+    """With every warning showing, the Capture panel, its two closed sub-panels and the Reconstruction
+    panel's header and Reconstruct button fit in the sidebar of a 1600 x 1000 screen (822 px)."""
+    import bpy
+
+    _state_sfm_with_every_warning(blender, empty_scene)
+    sidebar = _sidebar(blender)
+    calls = _draw(blender.ui.panels.VORTX_PT_capture, bpy.context)
+    root = next(bound.layout for _, bound in calls if isinstance(bound, Bound))
+    while root.parent is not None:
+        root = root.parent
+    capture = _height(sidebar, root)
+    print(f"Capture panel: {capture:.0f} px")
+    assert capture <= 12 * sidebar.ROW_PX  # a dozen rows, not the old thirty
+    reconstruct_bottom = sidebar.HEADER_PX + capture + 2 * sidebar.SUB_HEADER_PX + sidebar.HEADER_PX + sidebar.ROW_PX
+    assert reconstruct_bottom <= sidebar.SIDEBAR_HEIGHT_PX / 2
