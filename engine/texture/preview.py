@@ -86,7 +86,7 @@ def page_html(glb_name: str, title: str, model_viewer_js: str, usdz_name: str | 
 </head>
 <body>
 <model-viewer id="room" src="{html.escape(glb_name)}"{ios} alt="{html.escape(title)}: the textured room"
-  camera-controls touch-action="pan-y" ar ar-modes="webxr scene-viewer quick-look" shadow-intensity="0"
+  camera-controls camera-orbit="-30deg 50deg 75%" touch-action="pan-y" ar ar-modes="webxr scene-viewer quick-look" shadow-intensity="0"
   tone-mapping="neutral" interaction-prompt="none"></model-viewer>
 <div id="note">{html.escape(glb_name)}: drag to orbit, scroll or pinch to zoom; the AR button shows on devices that offer AR.</div>
 <script>
