@@ -62,6 +62,12 @@ def paragraph(layout: Any, text: str, width_px: float, icon: str = "NONE") -> No
         layout.label(text=line, icon=icon if index == 0 else ("BLANK1" if icon != "NONE" else "NONE"))
 
 
+def progress_bar(layout: Any, job: Job, width_px: float = sidebar.CONTENT_PX) -> None:
+    """The job's progress bar, its text (stage and counts) shortened to the bar: the status bar has it whole."""
+    layout.progress(text=sidebar.shorten(job.panel_text(), width_px - sidebar.BUTTON_PAD_PX),
+                    factor=job.progress.fraction, type="BAR")
+
+
 def poses_line(settings: Any) -> str:
     """"Poses: 36 of 36, by SfM"; "Poses: none (Estimate Poses)"."""
     if not settings.posed_frame_count:
@@ -125,7 +131,7 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job], width_px: float
     row.operator("vortx.refine_poses", icon="ORIENTATION_GIMBAL")
     layout.operator("vortx.set_scale", icon="DRIVER_DISTANCE")
     if job is not None and job.title not in RECONSTRUCTION_JOBS + RESULT_JOBS:
-        layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
+        progress_bar(layout, job)
 
 
 def draw_capture_details(layout: Any, settings: Any, width_px: float = sidebar.CONTENT_PX) -> None:
@@ -170,7 +176,7 @@ def quality_hint(settings: Any) -> Optional[str]:
 def draw_reconstruction(layout: Any, settings: Any, job: Optional[Job]) -> None:
     layout.operator("vortx.reconstruct", icon="MOD_REMESH")
     if job is not None and job.title in RECONSTRUCTION_JOBS:
-        layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
+        progress_bar(layout, job)
     _settings_layout(layout)
     layout.prop(settings, "method")
     col = layout.column()
@@ -234,7 +240,7 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
     paragraph(layout.column(align=True), headset_budget_text(settings.id_data), width_px, "INFO")
     layout.operator("vortx.bake_texture", icon="TEXTURE")
     if job is not None and job.title in RESULT_JOBS:
-        layout.progress(text=job.status_text(), factor=job.progress.fraction, type="BAR")
+        progress_bar(layout, job)
     baked = bake_summary(result) if result is not None else None
     if baked is not None:
         layout.label(text=f"Textured: {baked['texture_size']} px, {baked['stats'].get('faces', '?')} faces", icon="CHECKMARK")

@@ -66,6 +66,8 @@ def texts_and_budgets(blender: Any, calls: list) -> Iterator[tuple[str, float, s
             yield text, width - sidebar.BUTTON_PAD_PX - (sidebar.BUTTON_ICON_PX if _icon(bound) else 0), f"button {bound['operator']}"
         elif name == "prop":
             yield from _prop_texts(sidebar, node, bound, width)
+        elif name == "progress":
+            yield bound["text"], width - sidebar.BUTTON_PAD_PX, "progress bar"
 
 
 def _operator_label(idname: str) -> str:
@@ -252,3 +254,33 @@ def test_the_capture_panel_leaves_the_reconstruction_panel_on_a_1000_px_screen(b
     assert capture <= 12 * sidebar.ROW_PX  # a dozen rows, not the old thirty
     reconstruct_bottom = sidebar.HEADER_PX + capture + 2 * sidebar.SUB_HEADER_PX + sidebar.HEADER_PX + sidebar.ROW_PX
     assert reconstruct_bottom <= sidebar.SIDEBAR_HEIGHT_PX / 2
+
+
+def test_a_running_job_s_progress_fits_its_bar(blender, empty_scene) -> None:
+    """The bar says the stage and counts (the status bar has the rest): the real window cut
+    "VoRTX Reconstruct: ... (Esc to cancel)" in the middle."""
+    import threading
+
+    import bpy
+
+    jobs = blender.vortx_blender.jobs
+    release, reported = threading.Event(), threading.Event()
+
+    def work(progress, cancel):
+        progress("3D CNN 32 cm", 0, 1)
+        reported.set()
+        release.wait(10)
+
+    job = jobs.Job("Reconstruct", work, detail=lambda: "tiles 0/4 done, 1 running").start()
+    try:
+        reported.wait(5)
+        job.poll()
+        sidebar = _sidebar(blender)
+        calls = _draw(blender.ui.panels.VORTX_PT_reconstruction, bpy.context)
+        bars = [(text, budget) for text, budget, what in texts_and_budgets(blender, calls) if what == "progress bar"]
+        assert len(bars) == 1 and bars[0][0].startswith("3D CNN 32 cm 0/1, tiles 0/4 done")
+        assert all(sidebar.text_width(text) <= budget for text, budget in bars)
+        assert "(Esc to cancel)" in job.status_text()  # the status bar's text says how to stop it
+    finally:
+        release.set()
+        job.wait()
