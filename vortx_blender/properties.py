@@ -46,6 +46,9 @@ PRESENTATION: dict[str, dict[str, object]] = {
     "texture_size": {"subtype": "PIXEL"},
 }
 
+# How a choice of a text setting is named in its menu when capitalising it is wrong (Vortx, Patchmatch).
+CHOICE_NAMES = {"vortx": "VoRTX", "patchmatch": "PatchMatch"}
+
 MATCHER_ITEMS = [
     ("AUTO", "Auto", "Sequential matching for video-like captures, exhaustive for small unordered sets"),
     ("SEQUENTIAL", "Sequential", "Match each photo with its neighbours in capture order (fast, for walk-throughs)"),
@@ -277,7 +280,8 @@ def recon_property(f: "Field", **extra: object) -> object:
     limits = {key: meta[key] for key in ("min", "max") if meta[key] is not None}
     if meta["choices"] is not None:
         helps = meta["choice_help"] or ("",) * len(meta["choices"])
-        items = [(choice.upper(), choice.capitalize(), text) for choice, text in zip(meta["choices"], helps)]
+        items = [(choice.upper(), CHOICE_NAMES.get(choice, choice.capitalize()), text)
+                 for choice, text in zip(meta["choices"], helps)]
         return EnumProperty(items=items, default=str(default).upper(), **options)
     if kind is bool:
         return BoolProperty(default=bool(default), **options)

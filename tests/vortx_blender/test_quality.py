@@ -83,3 +83,9 @@ def test_quality_is_greyed_out_for_the_vortx_method(blender, empty_scene) -> Non
         blender.ui.panels.draw_reconstruction(RecordingLayout(calls), settings, None)
         (quality,) = [c[1] for c in calls if c[0] == "prop" and c[1]["property"] == "quality"]
         assert quality.layout.inherited("active", True) is active
+
+
+def test_menus_spell_the_method_and_matcher_names(blender, empty_scene) -> None:
+    rna = empty_scene.vortx.bl_rna.properties
+    assert [item.name for item in rna["method"].enum_items] == ["Stereo", "VoRTX"]
+    assert [item.name for item in rna["stereo_matcher"].enum_items] == ["PatchMatch", "Fast"]
