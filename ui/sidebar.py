@@ -71,11 +71,20 @@ def line_px(content: float = CONTENT_PX, icon: bool = False, boxed: bool = False
     return content - LABEL_PAD_PX - (ICON_PX if icon else 0) - (BOX_PX if boxed else 0)
 
 
+UNITS = ("%", "px", "m", "cm", "deg", "s", "min")  # kept with the number before them
+
+
 def wrap(text: str, width_px: float) -> list[str]:
     """`text` in lines of at most `width_px` (Blender's text width), broken between words (a word wider
     than a line, such as a long path, is broken inside)."""
-    lines: list[str] = []
+    words: list[str] = []
     for word in text.split():
+        if words and word in UNITS:  # "+-12 %" stays on one line
+            words[-1] = f"{words[-1]} {word}"
+        else:
+            words.append(word)
+    lines: list[str] = []
+    for word in words:
         if lines and text_width(f"{lines[-1]} {word}") <= width_px:
             lines[-1] = f"{lines[-1]} {word}"
             continue

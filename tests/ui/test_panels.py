@@ -342,6 +342,8 @@ def test_details_wrap_long_text_whole_to_the_sidebar_width(blender, empty_scene)
     assert len(texts) - start >= 4  # wrapped, not one cut line
     assert max(sidebar.text_width(t) for t in texts) <= sidebar.line_px()
     assert len(details(2 * sidebar.CONTENT_PX)) < len(lines)
+    for width in range(120, 400, 7):  # a unit never starts a line: "+-12" then "%" read as two things
+        assert not any(line == "%" or line.startswith("% ") for line in sidebar.wrap(settings.pose_status, width))
     # The width a panel draws into: the region's, less the tab strip and margins, at UI scale 1.
     scale = bpy.context.preferences.system.ui_scale or 1.0  # 0 without a window
     assert sidebar.content_px(SimpleNamespace(region=SimpleNamespace(width=600))) == pytest.approx(600 / scale - sidebar.MARGIN_PX)
