@@ -151,18 +151,20 @@ def show_vortx_tab():
     subprocess.run(["xdotool", "mousemove", "5", "5"], check=True, timeout=30)  # no hover highlight in the shots
 
 
-OPENED: set = set()  # the sub-panels opened so far
+OPENED: set = set()  # the sub-panels shown open
 REGISTERED: list = []  # the panel classes registered in their place
 
 
 def open_panels(names) -> None:
-    """Open sub-panels closed by default, as a user clicks their headers. Python can neither open a drawn
-    panel nor reset it (one registered again keeps its state), so each is registered again under a new
-    idname ("..._open", its children moved under it) without DEFAULT_CLOSED: a new panel, open. All the
-    add-on's panels are registered again, parents first, so they keep their order."""
+    """Show the sub-panels `names` open and every other one as it was, as a user clicks headers. Python
+    can neither open a drawn panel nor reset it (one registered again keeps its state), so each is
+    registered again under a new idname ("..._open", its children moved under it) without DEFAULT_CLOSED:
+    a new panel, open; registered under its own idname again it is the closed one it was. All the add-on's
+    panels are registered again, parents first, so they keep their order."""
     panels = addon("ui.panels")
     for cls in reversed(REGISTERED or panels.classes):
         bpy.utils.unregister_class(cls)
+    OPENED.clear()
     OPENED.update(names)
     REGISTERED.clear()
     for cls in panels.classes:
@@ -261,6 +263,8 @@ def workflow():
     open_panels([DETAILS_PANEL])
     yield from settle()
     shot("gui_03_details", "the Details sub-panel opened: the pose status and the scale's derivation in full", True)
+    open_panels([])  # closed again, as the user leaves it
+    yield from settle()
     end()
 
     begin("Reconstruct with VoRTX, tiles shown, then Esc")
