@@ -346,5 +346,6 @@ def test_details_wrap_long_text_whole_to_the_sidebar_width(blender, empty_scene)
         assert not any(line == "%" or line.startswith("% ") for line in sidebar.wrap(settings.pose_status, width))
     # The width a panel draws into: the region's, less the tab strip and margins, at UI scale 1.
     scale = bpy.context.preferences.system.ui_scale or 1.0  # 0 without a window
-    assert sidebar.content_px(SimpleNamespace(region=SimpleNamespace(width=600))) == pytest.approx(600 / scale - sidebar.MARGIN_PX)
+    assert sidebar.content_px(SimpleNamespace(region=SimpleNamespace(width=600))) == pytest.approx(
+        600 / scale * sidebar.WINDOW_SCALE - sidebar.MARGIN_PX)
     assert sidebar.content_px(SimpleNamespace(region=None)) == sidebar.CONTENT_PX
