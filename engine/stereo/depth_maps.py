@@ -20,8 +20,9 @@ from ..jobs import CancelToken, ProgressCallback, check, report
 from ..geometry.cameras import project_points, scale_intrinsics, world_to_camera
 from ..capture.images import load_resized, resized_size
 from .depth_filters import median_depth, remove_speckles
-from .options import StereoOptions
-from .source_views import select_sources
+from .options import MATCHER_PATCHMATCH, StereoOptions
+from .patchmatch_views import PatchMatchSchedule, patchmatch_views
+from .source_views import scene_points, select_sources, select_sources_by_triangulation
 from .sweep import sweep_depth
 
 MIN_RANGE_POINTS = 30  # sparse points a view must see before its depth range is taken from them
@@ -40,6 +41,7 @@ class DepthMap:
     pose: np.ndarray  # (4, 4) float64 camera-to-world
     sources: np.ndarray  # (S,) int64 positions of the source frames used
     depth_range: tuple[float, float]  # (near, far) metres swept
+    normal: Optional[np.ndarray] = None  # (h, w, 3) float32 unit camera-frame normals (PatchMatch's planes), None for the sweep
 
     @property
     def completeness(self) -> float:
@@ -138,6 +140,8 @@ def estimate_depth_maps(
             images[i] = (torch.as_tensor(grey), K)
         return images[i]
 
+    if options.matcher == MATCHER_PATCHMATCH:
+        return _patchmatch_maps(frames, poses, references, options, image, points, bounds, progress, cancel)
     heights = ground_heights(points, bounds)
     maps: list[DepthMap] = []
     for done, r in enumerate(references):
@@ -211,6 +215,129 @@ def filter_consistent(maps: list[DepthMap], min_views: int) -> None:
             count += (inside & (found > 0) & (np.abs(found - zb) <= CONSISTENCY_RELATIVE_DEPTH * zb)).astype(np.int64)
         confirmations.append((v, u, count))
     for m, (v, u, count) in zip(maps, confirmations):
+        drop = count < min_views
+        m.depth[v[drop], u[drop]] = 0.0
+        m.confidence[v[drop], u[drop]] = 0.0
+
+
+def patchmatch_sources(poses: np.ndarray, Ks: np.ndarray, sizes: np.ndarray, reference: int, count: int,
+                       points: Optional[np.ndarray], depth_range: tuple[float, float]) -> np.ndarray:
+    """Sources of `reference` among the given views by triangulation angle and overlap: over the sparse
+    points the reference sees, else over its pixels at the middle of its depth range; the pose rule
+    (`select_sources`) when neither finds `count`."""
+    seen = np.zeros((0, 3))
+    if points is not None and len(points):
+        u, v, z = project_points(points, Ks[reference], poses[reference])
+        inside = (z > 1e-3) & (u >= 0) & (u < sizes[reference, 0]) & (v >= 0) & (v < sizes[reference, 1])
+        seen = points[inside]
+    if len(seen) < MIN_RANGE_POINTS:
+        middle = 2.0 / (1.0 / depth_range[0] + 1.0 / depth_range[1])  # the middle in inverse depth
+        seen = scene_points(Ks[reference], poses[reference], tuple(sizes[reference]), middle)
+    chosen = select_sources_by_triangulation(poses, Ks, sizes, reference, count, seen)
+    if len(chosen) < count:
+        extra = [s for s in select_sources(poses, reference, count) if s not in set(chosen.tolist())]
+        chosen = np.concatenate([chosen, np.asarray(extra[:count - len(chosen)], dtype=np.int64)])
+    return chosen.astype(np.int64)
+
+
+def _patchmatch_maps(
+    frames: Sequence[Frame], poses: np.ndarray, references: Sequence[int], options: StereoOptions, image,
+    points: Optional[np.ndarray], bounds: Optional[tuple[np.ndarray, np.ndarray]],
+    progress: Optional[ProgressCallback], cancel: Optional[CancelToken],
+) -> list[DepthMap]:
+    """PatchMatch depth and normal maps of `references` (patchmatch_views.py), matched against the
+    other references (whose maps the geometric-consistency passes need), then filtered: kept where
+    the matching cost is low enough and `options.consistency_views` other maps agree."""
+    device = torch.device(options.device)
+    references = [int(r) for r in references]
+    ref_poses = poses[references]
+    Ks = np.stack([image(r)[1] for r in references])
+    sizes = np.array([(image(r)[0].shape[1], image(r)[0].shape[0]) for r in references])
+    ranges = [depth_range(Ks[i], poses[r], tuple(sizes[i]), options, points, bounds) for i, r in enumerate(references)]
+    # Sources among the references (positions into `references`), all of one size.
+    sources = {}
+    for i, r in enumerate(references):
+        chosen = patchmatch_sources(ref_poses, Ks, sizes, i, options.sources, points, ranges[i])
+        sources[i] = [int(s) for s in chosen if tuple(sizes[s]) == tuple(sizes[i])]
+    schedule = PatchMatchSchedule(scales=options.scales, window=options.pm_window, coarse_iterations=options.coarse_iterations,
+                                  fine_iterations=options.fine_iterations, geometric_passes=options.geometric_passes)
+    local_image = lambda i: image(references[i])  # noqa: E731
+    planes = patchmatch_views(list(range(len(references))), lambda i: sources[i], local_image, ref_poses, ranges,
+                              schedule, device, progress=progress, cancel=cancel)
+    maps = []
+    max_cost = 1.0 - options.min_ncc
+    for i, (r, plane) in enumerate(zip(references, planes)):
+        keep = plane.cost <= max_cost
+        depth = np.where(keep, plane.depth, 0.0).astype(np.float32)
+        confidence = np.where(keep, np.clip(1.0 - plane.cost, 0.0, 1.0), 0.0).astype(np.float32)
+        used = np.array([references[s] for s in sources[i]], dtype=np.int64)
+        maps.append(DepthMap(r, depth, confidence, Ks[i], poses[r], used, ranges[i], normal=plane.normal))
+    if options.consistency_views > 0:
+        filter_geometric(maps, options.consistency_views)
+    for m in maps:
+        speckles = remove_speckles(m.depth)
+        m.depth[speckles], m.confidence[speckles] = 0.0, 0.0
+    return maps
+
+
+GEOMETRIC_RELATIVE_DEPTH = 0.01  # OpenMVS / MVSNet: two depths agree within 1 %...
+GEOMETRIC_REPROJECTION_PX = 1.0  # ...the point comes back within 1 px...
+GEOMETRIC_NORMAL_DEG = 25.0  # ...and the normals within 25 deg (where both maps have normals)
+
+
+def filter_geometric(maps: list[DepthMap], min_views: int, relative_depth: float = GEOMETRIC_RELATIVE_DEPTH,
+                     reprojection_px: float = GEOMETRIC_REPROJECTION_PX, normal_deg: float = GEOMETRIC_NORMAL_DEG) -> None:
+    """Drop, in place, depths that fewer than `min_views` other maps confirm. Another map confirms a
+    depth when the point projects into it, its depth there (nearest pixel) brought back into this
+    view lands within `reprojection_px` of the pixel and within `relative_depth` of the depth, and
+    (where both have normals) the normals agree within `normal_deg`. Checked against every other map
+    that shares the view's depth range, nearest camera first (CONSISTENCY_NEIGHBOURS or `min_views`)."""
+    if not maps:
+        return
+    poses = np.stack([m.pose for m in maps])
+    neighbours = max(CONSISTENCY_NEIGHBOURS, min_views)
+    cos_limit = np.cos(np.radians(normal_deg))
+    counts = []
+    for a, m in enumerate(maps):
+        v, u = np.nonzero(m.depth > 0)
+        z = m.depth[v, u].astype(np.float64)
+        rays = np.linalg.inv(m.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
+        world = (m.pose[:3, :3] @ (rays * z) + m.pose[:3, 3:4]).T
+        normals_world = m.normal[v, u].astype(np.float64) @ m.pose[:3, :3].T if m.normal is not None else None
+        count = np.zeros(len(z), dtype=np.int64)
+        distance = np.linalg.norm(poses[:, :3, 3] - m.pose[:3, 3], axis=1)
+        distance[a] = np.inf
+        for b in np.argsort(distance)[:neighbours]:
+            if not np.isfinite(distance[b]):
+                continue
+            other = maps[int(b)]
+            cam = (world - other.pose[:3, 3]) @ other.pose[:3, :3]
+            zb = cam[:, 2]
+            front = zb > 1e-3
+            zs = np.where(front, zb, 1.0)
+            ub = other.K[0, 0] * cam[:, 0] / zs + other.K[0, 2]
+            vb = other.K[1, 1] * cam[:, 1] / zs + other.K[1, 2]
+            oh, ow = other.depth.shape
+            inside = front & (ub >= 0) & (ub < ow) & (vb >= 0) & (vb < oh)
+            col = np.clip(np.floor(ub).astype(np.int64), 0, ow - 1)
+            row = np.clip(np.floor(vb).astype(np.int64), 0, oh - 1)
+            found = np.where(inside, other.depth[row, col], 0.0).astype(np.float64)
+            # The other map's point at that pixel, back in this view.
+            back_rays = np.linalg.inv(other.K) @ np.stack([col + 0.5, row + 0.5, np.ones_like(found)])
+            back_world = (other.pose[:3, :3] @ (back_rays * found) + other.pose[:3, 3:4]).T
+            back = (back_world - m.pose[:3, 3]) @ m.pose[:3, :3]
+            zback = np.where(back[:, 2] > 1e-6, back[:, 2], 1.0)
+            ua = m.K[0, 0] * back[:, 0] / zback + m.K[0, 2]
+            va = m.K[1, 1] * back[:, 1] / zback + m.K[1, 2]
+            reprojected = np.hypot(ua - (u + 0.5), va - (v + 0.5))
+            agree = inside & (found > 0) & (back[:, 2] > 1e-6) & (np.abs(back[:, 2] - z) <= relative_depth * z) \
+                & (reprojected <= reprojection_px)
+            if normals_world is not None and other.normal is not None:
+                other_normals = other.normal[row, col].astype(np.float64) @ other.pose[:3, :3].T
+                agree &= np.sum(normals_world * other_normals, axis=1) >= cos_limit
+            count += agree
+        counts.append((v, u, count))
+    for m, (v, u, count) in zip(maps, counts):
         drop = count < min_views
         m.depth[v[drop], u[drop]] = 0.0
         m.confidence[v[drop], u[drop]] = 0.0

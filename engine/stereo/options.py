@@ -34,6 +34,13 @@ class StereoOptions:
     evidence_fusion: bool = False  # weigh each depth by its evidence in fusion (fused_tsdf.fuse_stereo_evidence)
     min_support: int = 1  # with evidence fusion: views that must agree before a voxel can carry a surface
     piece_min_views: int = 0  # with evidence fusion: drop mesh pieces that fewer views agree on anywhere (0 = keep all)
+    # PatchMatch (matcher "patchmatch"): patchmatch_views.PatchMatchSchedule; `sources`, `min_ncc`,
+    # `long_side` and `consistency_views` (the geometric filter's agreeing views) are shared with the sweep.
+    scales: int = 2  # image sizes, each half the next, ending at long_side
+    pm_window: int = 9  # window side in pixels, sampled every 2nd pixel
+    coarse_iterations: int = 3
+    fine_iterations: int = 2
+    geometric_passes: int = 1
     device: str = "cpu"
 
     def validate(self) -> None:

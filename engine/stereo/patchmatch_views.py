@@ -1,0 +1,209 @@
+"""PatchMatch depth and normal maps of a set of reference views: coarse to fine per view, then
+geometric-consistency passes over all views together.
+
+Per reference (`photometric_planes`): the planes start at the coarsest scale from an initial depth
+(the fast sweep's, where it found one) with fronto-parallel normals and random planes elsewhere, run
+`coarse_iterations` of PatchMatch, and carry to each finer scale (twice the size), where
+`fine_iterations` refine them. The coarse planes are a prior for weakly textured windows: a fine
+pixel whose window has almost no texture keeps the coarse plane unless a candidate matches clearly
+better.
+
+Then (`geometric_passes`), with every reference's depth map known, each reference is rescored with
+the forward-backward reprojection error into its sources' depth maps and refined for
+`geometric_iterations` more iterations (ACMM's geometric consistency; the maps of the previous pass
+are used, so the result does not depend on the order of the views).
+
+Tensors on `device`; images (h, w) grey in [0, 1]; K in pixels of their image; poses camera-to-world.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Optional, Sequence
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from ..geometry.cameras import scale_intrinsics
+from ..jobs import CancelToken, ProgressCallback, check, report
+from .patchmatch import PlaneState, initial_state, patchmatch_iterations, rescore, upsample_planes
+from .plane_cost import MAX_COST, ReferenceWindows, SourceViews
+
+# An image source: (position) -> (grey (h, w) float32 tensor at the finest stereo size, K (3, 3) for it).
+ImageSource = Callable[[int], tuple[Tensor, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class PatchMatchSchedule:
+    scales: int = 2  # image sizes, each twice the previous, ending at the stereo size
+    window: int = 9  # window side in pixels at every scale (sampled every 2nd pixel)
+    coarse_iterations: int = 3
+    fine_iterations: int = 2  # at each finer scale
+    geometric_passes: int = 1  # passes over all views with the geometric term
+    geometric_iterations: int = 1  # PatchMatch iterations per view and pass
+    geometric_weight: float = 0.2  # cost per pixel of reprojection error (ACMM: 0.2, capped at 3 px)
+    seed: int = 0
+
+
+@dataclass
+class PlaneMap:
+    """One reference's PatchMatch result at the stereo size."""
+
+    depth: np.ndarray  # (h, w) float32 metres, planar z (> 0 everywhere before filtering)
+    normal: np.ndarray  # (h, w, 3) float32 unit, camera coordinates, facing the camera
+    cost: np.ndarray  # (h, w) float32 photometric cost 1 - NCC of the view-weighted sources, in [0, 2]
+
+
+def _resize(image: Tensor, size: tuple[int, int]) -> Tensor:
+    """(h, w) image at size (h', w') (area averaging when shrinking)."""
+    if tuple(image.shape) == size:
+        return image
+    return F.interpolate(image[None, None], size=size, mode="area")[0, 0]
+
+
+def _scale_sizes(height: int, width: int, scales: int) -> list[tuple[int, int]]:
+    """Image sizes (h, w), coarsest first, ending at (height, width)."""
+    sizes = [(height, width)]
+    for _ in range(scales - 1):
+        h, w = sizes[0]
+        sizes.insert(0, (max(8, round(h / 2)), max(8, round(w / 2))))
+    return sizes
+
+
+def _source_views(images: Sequence[Tensor], Ks: Sequence[np.ndarray], ref_pose: np.ndarray, poses: Sequence[np.ndarray],
+                  size: Optional[tuple[int, int]], device: torch.device, depths: Optional[Sequence[Optional[Tensor]]] = None
+                  ) -> SourceViews:
+    """The sources of one reference at one size (h, w) (None: their own size)."""
+    resized, Kr = [], []
+    for image, K in zip(images, Ks):
+        h, w = size if size is not None else tuple(image.shape)
+        resized.append(_resize(image, (h, w)).to(device))
+        Kr.append(scale_intrinsics(K, (image.shape[1], image.shape[0]), (w, h)))
+    src_from_ref = np.stack([np.linalg.inv(p) @ ref_pose for p in poses]) if len(poses) else np.zeros((0, 4, 4))
+    stacked_depths = None
+    if depths is not None:
+        h, w = resized[0].shape if resized else (1, 1)
+        stacked_depths = torch.stack([
+            (F.interpolate(d[None, None], size=(h, w), mode="nearest")[0, 0] if d is not None
+             else torch.zeros((h, w))).to(device) for d in depths])
+    as_tensor = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=device)  # noqa: E731
+    return SourceViews(
+        images=torch.stack(resized) if resized else torch.zeros((0, 1, 1), device=device),
+        K=as_tensor(np.stack(Kr)) if Kr else torch.zeros((0, 3, 3), device=device),
+        rotation=as_tensor(src_from_ref[:, :3, :3]), translation=as_tensor(src_from_ref[:, :3, 3]),
+        depths=stacked_depths)
+
+
+def _fronto_normals(rays: Tensor) -> Tensor:
+    return -rays / rays.norm(dim=-1, keepdim=True)
+
+
+def photometric_planes(
+    image: Tensor, K: np.ndarray, pose: np.ndarray, source_images: Sequence[Tensor], source_Ks: Sequence[np.ndarray],
+    source_poses: Sequence[np.ndarray], depth_range: tuple[float, float], schedule: PatchMatchSchedule,
+    device: torch.device, initial_depth: Optional[np.ndarray] = None, cancel: Optional[CancelToken] = None,
+) -> tuple[PlaneState, ReferenceWindows]:
+    """One reference's planes at the stereo size (the size of `image`), from photo-consistency alone.
+
+    initial_depth: optional (h', w') depth map (0 = none) of any size, e.g. the fast sweep's.
+    """
+    generator = torch.Generator(device=device).manual_seed(schedule.seed)
+    H, W = image.shape
+    state: Optional[PlaneState] = None
+    ref: Optional[ReferenceWindows] = None
+    iteration = 0
+    for size in _scale_sizes(H, W, schedule.scales):
+        check(cancel)
+        scaled_K = scale_intrinsics(K, (W, H), (size[1], size[0]))
+        ref = ReferenceWindows(_resize(image, size).to(device), torch.as_tensor(scaled_K, dtype=torch.float32, device=device),
+                               schedule.window)
+        sources = _source_views(source_images, source_Ks, pose, source_poses, size, device)
+        if state is None:
+            depth = normal = None
+            if initial_depth is not None:
+                start = torch.as_tensor(initial_depth, dtype=torch.float32)[None, None]
+                depth = F.interpolate(start, size=size, mode="nearest").reshape(-1).to(device)
+                normal = _fronto_normals(ref.rays)
+            state = initial_state(ref, sources, depth_range, generator, depth, normal)
+            count = schedule.coarse_iterations
+        else:
+            depth, normal = upsample_planes(state, previous_size, ref)
+            state = initial_state(ref, sources, depth_range, generator, depth, normal)
+            count = schedule.fine_iterations
+        patchmatch_iterations(state, ref, sources, depth_range, count, generator, first_iteration=iteration, cancel=cancel)
+        iteration += count
+        previous_size = size
+    assert state is not None and ref is not None
+    return state, ref
+
+
+def geometric_refinement(
+    state: PlaneState, ref: ReferenceWindows, pose: np.ndarray, source_images: Sequence[Tensor],
+    source_Ks: Sequence[np.ndarray], source_poses: Sequence[np.ndarray], source_depths: Sequence[Optional[Tensor]],
+    depth_range: tuple[float, float], schedule: PatchMatchSchedule, device: torch.device, first_iteration: int,
+    cancel: Optional[CancelToken] = None,
+) -> PlaneState:
+    """`state` rescored and refined with the geometric term against the sources' depth maps."""
+    generator = torch.Generator(device=device).manual_seed(schedule.seed + 1 + first_iteration)
+    sources = _source_views(source_images, source_Ks, pose, source_poses, (ref.height, ref.width), device, source_depths)
+    rescore(state, ref, sources, schedule.geometric_weight, first_iteration)
+    return patchmatch_iterations(state, ref, sources, depth_range, schedule.geometric_iterations, generator,
+                                 schedule.geometric_weight, first_iteration, cancel)
+
+
+def photometric_cost(state: PlaneState, ref: ReferenceWindows, pose: np.ndarray, source_images: Sequence[Tensor],
+                     source_Ks: Sequence[np.ndarray], source_poses: Sequence[np.ndarray], device: torch.device,
+                     iteration: int) -> Tensor:
+    """(HW,) the planes' photometric cost alone (the geometric term left out), view-weighted."""
+    sources = _source_views(source_images, source_Ks, pose, source_poses, (ref.height, ref.width), device)
+    scored = PlaneState(state.depth, state.normal, state.costs.clone(), state.cost.clone(), state.view_weights.clone())
+    scored._rays = state._rays
+    return rescore(scored, ref, sources, 0.0, iteration).cost
+
+
+def patchmatch_views(
+    references: Sequence[int], sources_of: Callable[[int], Sequence[int]], image: ImageSource, poses: np.ndarray,
+    depth_ranges: Sequence[tuple[float, float]], schedule: PatchMatchSchedule, device: torch.device,
+    initial_depths: Optional[Sequence[Optional[np.ndarray]]] = None, progress: Optional[ProgressCallback] = None,
+    cancel: Optional[CancelToken] = None,
+) -> list[PlaneMap]:
+    """PlaneMaps of `references` (positions into `poses` and `image`), each matched against
+    `sources_of(reference)`; geometric passes use the maps of the sources that are references too."""
+    states: list[tuple[PlaneState, ReferenceWindows]] = []
+    steps = len(references) * (1 + schedule.geometric_passes)
+    for done, r in enumerate(references):
+        report(progress, "patchmatch", done, steps)
+        img, K = image(r)
+        srcs = list(sources_of(r))
+        states.append(photometric_planes(img, K, poses[r], [image(s)[0] for s in srcs], [image(s)[1] for s in srcs],
+                                         [poses[s] for s in srcs], depth_ranges[done], schedule, device,
+                                         None if initial_depths is None else initial_depths[done], cancel))
+    position = {int(r): i for i, r in enumerate(references)}
+    iteration = schedule.coarse_iterations + (schedule.scales - 1) * schedule.fine_iterations
+    for p in range(schedule.geometric_passes):
+        depths = [state.depth.reshape(ref.height, ref.width).clone().cpu() for state, ref in states]
+        for done, r in enumerate(references):
+            report(progress, "patchmatch", len(references) * (1 + p) + done, steps)
+            state, ref = states[done]
+            srcs = list(sources_of(r))
+            source_depths = [depths[position[s]] if s in position else None for s in srcs]
+            geometric_refinement(state, ref, poses[r], [image(s)[0] for s in srcs], [image(s)[1] for s in srcs],
+                                 [poses[s] for s in srcs], source_depths, depth_ranges[done], schedule, device,
+                                 iteration, cancel)
+        iteration += schedule.geometric_iterations
+    report(progress, "patchmatch", steps, steps)
+    maps = []
+    for done, (r, (state, ref)) in enumerate(zip(references, states)):
+        srcs = list(sources_of(r))
+        if schedule.geometric_passes:
+            cost = photometric_cost(state, ref, poses[r], [image(s)[0] for s in srcs], [image(s)[1] for s in srcs],
+                                    [poses[s] for s in srcs], device, iteration)
+        else:
+            cost = state.cost
+        h, w = ref.height, ref.width
+        maps.append(PlaneMap(state.depth.reshape(h, w).cpu().numpy().astype(np.float32),
+                             state.normal.reshape(h, w, 3).cpu().numpy().astype(np.float32),
+                             cost.clamp(0, MAX_COST).reshape(h, w).cpu().numpy().astype(np.float32)))
+    return maps

@@ -1,0 +1,171 @@
+"""PatchMatch stereo against exact geometry: a textured floor seen at a slant, rendered by ray casting
+(no engine code), where a fronto-parallel window straddles a range of depths and a slanted plane does
+not; the plane cost, the PatchMatch loop, the geometric term and the geometric filter."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from engine.geometry.cameras import look_at
+from engine.stereo.depth_maps import DepthMap, filter_geometric
+from engine.stereo.patchmatch_views import PatchMatchSchedule, photometric_planes, geometric_refinement
+from engine.stereo.plane_cost import MAX_COST, ReferenceWindows, SourceViews, plane_costs
+from engine.stereo.source_views import select_sources_by_triangulation
+
+SIZE = (96, 72)  # (w, h)
+FOCAL = 80.0
+
+
+def floor_views(count: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cameras 1.2 m above a random-textured floor (z = 0), looking 40 deg down along +y, side by side:
+    images (count, h, w) float32, K (3, 3), poses (count, 4, 4)."""
+    rng = np.random.default_rng(1)
+    texture = cv2.GaussianBlur(rng.random((512, 512)).astype(np.float32), (0, 0), 3.0)
+    texture = (texture - texture.min()) / (texture.max() - texture.min())
+    w, h = SIZE
+    K = np.array([[FOCAL, 0, w / 2], [0, FOCAL, h / 2], [0, 0, 1]])
+    images, poses = [], []
+    for i in range(count):
+        eye = np.array([0.1 * (i - count // 2), 0.03 * i, 1.2])
+        pose = look_at(eye, eye + np.array([0.0, 1.0, -np.tan(np.radians(40))]))
+        v, u = np.mgrid[0:h, 0:w] + 0.5
+        rays = pose[:3, :3] @ (np.linalg.inv(K) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)]))
+        t = -eye[2] / rays[2]
+        world = eye[:, None] + rays * t
+        tx = ((world[0] + 3.0) / 6.0 * 511).astype(np.float32).reshape(h, w)
+        ty = ((world[1] + 0.5) / 6.0 * 511).astype(np.float32).reshape(h, w)
+        images.append(cv2.remap(texture, tx, ty, cv2.INTER_LINEAR))
+        poses.append(pose)
+    return np.stack(images), K, np.stack(poses)
+
+
+def true_floor(K: np.ndarray, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(h, w) planar depth of the floor and its normal (3,) in the camera's coordinates."""
+    w, h = SIZE
+    v, u = np.mgrid[0:h, 0:w] + 0.5
+    rays_cam = np.linalg.inv(K) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
+    rays = pose[:3, :3] @ rays_cam
+    depth = (-pose[2, 3] / rays[2]).reshape(h, w)  # z of the camera ray is 1, so t is the planar depth
+    return depth, pose[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+
+
+def sources_of(images, K, poses, ref: int, srcs: list[int], depths=None) -> SourceViews:
+    rel = np.linalg.inv(poses[srcs]) @ poses[ref]
+    f = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32)  # noqa: E731
+    return SourceViews(f(images[srcs]), f(np.stack([K] * len(srcs))), f(rel[:, :3, :3]), f(rel[:, :3, 3]),
+                       None if depths is None else f(depths))
+
+
+def interior(margin: int = 8) -> np.ndarray:
+    w, h = SIZE
+    mask = np.zeros((h, w), bool)
+    mask[margin:h - margin, margin:w - margin] = True
+    return mask
+
+
+def test_the_true_slanted_plane_matches_every_source_and_a_fronto_parallel_one_does_not() -> None:
+    images, K, poses = floor_views()
+    ref, srcs = 2, [0, 1, 3, 4]
+    depth, normal = true_floor(K, poses[ref])
+    windows = ReferenceWindows(torch.as_tensor(images[ref]), torch.as_tensor(K, dtype=torch.float32), 9)
+    pixels = torch.as_tensor(np.flatnonzero(interior(12)))
+    d = torch.as_tensor(depth.reshape(-1), dtype=torch.float32)[pixels]
+    slanted = torch.as_tensor(np.tile(normal, (len(pixels), 1)), dtype=torch.float32)
+    rays = windows.rays[pixels]
+    fronto = -rays / rays.norm(dim=-1, keepdim=True)
+    costs = plane_costs(windows, sources_of(images, K, poses, ref, srcs), pixels, torch.stack([d, d]),
+                        torch.stack([slanted, fronto]))
+    true_cost, fronto_cost = costs[0].median(0).values, costs[1].median(0).values
+    assert float(true_cost.median()) < 0.05, "the true plane warps every window onto the same floor texture"
+    # A smooth floor texture forgives a little: the fronto-parallel window still scores 2x worse.
+    assert float(fronto_cost.median()) > 2 * float(true_cost.median())
+    # A plane the source cannot see (depth behind the reference camera) scores the worst cost.
+    behind = plane_costs(windows, sources_of(images, K, poses, ref, srcs), pixels[:10], -torch.ones((1, 10)), slanted[None, :10])
+    assert torch.all(behind == MAX_COST)
+
+
+def test_patchmatch_from_random_planes_recovers_the_floor_depth_and_normal() -> None:
+    torch.manual_seed(0)
+    images, K, poses = floor_views()
+    ref, srcs = 2, [0, 1, 3, 4]
+    depth, normal = true_floor(K, poses[ref])
+    state, windows = photometric_planes(
+        torch.as_tensor(images[ref]), K, poses[ref], [torch.as_tensor(images[s]) for s in srcs], [K] * len(srcs),
+        [poses[s] for s in srcs], (0.5, 6.0), PatchMatchSchedule(scales=2, coarse_iterations=3, fine_iterations=2),
+        torch.device("cpu"))
+    found = state.depth.reshape(SIZE[1], SIZE[0]).numpy()
+    normals = state.normal.reshape(SIZE[1], SIZE[0], 3).numpy()
+    inside = interior()
+    relative = np.abs(found - depth) / depth
+    assert np.mean(relative[inside] < 0.01) > 0.9
+    angle = np.degrees(np.arccos(np.clip(normals @ normal, -1, 1)))
+    assert np.mean(angle[inside] < 10.0) > 0.8
+
+
+def test_the_geometric_term_is_zero_for_consistent_maps_and_grows_with_disagreement() -> None:
+    images, K, poses = floor_views()
+    ref, srcs = 2, [1, 3]
+    depth, normal = true_floor(K, poses[ref])
+    source_depths = np.stack([true_floor(K, poses[s])[0] for s in srcs])
+    windows = ReferenceWindows(torch.as_tensor(images[ref]), torch.as_tensor(K, dtype=torch.float32), 9)
+    pixels = torch.as_tensor(np.flatnonzero(interior(12)))
+    d = torch.as_tensor(depth.reshape(-1), dtype=torch.float32)[pixels]
+    n = torch.as_tensor(np.tile(normal, (len(pixels), 1)), dtype=torch.float32)
+    photometric = plane_costs(windows, sources_of(images, K, poses, ref, srcs), pixels, d[None], n[None])
+    consistent = plane_costs(windows, sources_of(images, K, poses, ref, srcs, source_depths), pixels, d[None], n[None], 1.0)
+    assert float((consistent - photometric).median()) < 0.05  # nearest-pixel lookups: well under a pixel
+    shifted = plane_costs(windows, sources_of(images, K, poses, ref, srcs, source_depths * 1.5), pixels, d[None], n[None], 1.0)
+    # The source maps 50 % too deep: ~1.3 px of parallax at 0.1 m baseline, 2 m and an 80 px focal length.
+    assert float((shifted - photometric).median()) > 0.8
+
+
+def test_geometric_refinement_keeps_a_consistent_result() -> None:
+    images, K, poses = floor_views()
+    ref, srcs = 2, [1, 3]
+    schedule = PatchMatchSchedule(scales=1, coarse_iterations=2)
+    state, windows = photometric_planes(
+        torch.as_tensor(images[ref]), K, poses[ref], [torch.as_tensor(images[s]) for s in srcs], [K, K],
+        [poses[s] for s in srcs], (0.5, 6.0), schedule, torch.device("cpu"))
+    source_depths = [torch.as_tensor(true_floor(K, poses[s])[0], dtype=torch.float32) for s in srcs]
+    geometric_refinement(state, windows, poses[ref], [torch.as_tensor(images[s]) for s in srcs], [K, K],
+                         [poses[s] for s in srcs], source_depths, (0.5, 6.0), schedule, torch.device("cpu"), 2)
+    depth, _ = true_floor(K, poses[ref])
+    found = state.depth.reshape(SIZE[1], SIZE[0]).numpy()
+    assert np.mean((np.abs(found - depth) / depth)[interior()] < 0.01) > 0.9
+
+
+def _plane_map(frame: int, K: np.ndarray, pose: np.ndarray) -> DepthMap:
+    depth, normal = true_floor(K, pose)
+    normals = np.broadcast_to(normal, (*depth.shape, 3)).astype(np.float32).copy()
+    return DepthMap(frame, depth.astype(np.float32), np.ones_like(depth, np.float32), K, pose, np.zeros(0, np.int64),
+                    (0.5, 6.0), normal=normals)
+
+
+def test_the_geometric_filter_keeps_what_two_views_confirm_and_drops_the_rest() -> None:
+    _, K, poses = floor_views()
+    maps = [_plane_map(i, K, p) for i, p in enumerate(poses)]
+    wrong = maps[2]
+    wrong.depth[30:40, 40:50] *= 1.05  # 5 %: beyond the 1 % agreement
+    wrong.normal[10:20, 10:20] = np.array([1.0, 0.0, 0.0])  # 90 deg off the floor's normal, depth right
+    filter_geometric(maps, 2)
+    assert np.all(wrong.depth[30:40, 40:50] == 0), "depths 5 % off are dropped"
+    assert np.all(wrong.depth[10:20, 10:20] == 0), "a wrong normal is dropped although the depth agrees"
+    # The rest of the view is confirmed by its neighbours (where they see it).
+    kept = wrong.depth[interior(12)] > 0
+    assert kept.mean() > 0.8
+
+
+def test_sources_by_triangulation_prefer_a_twelve_degree_angle() -> None:
+    K = np.array([[100.0, 0, 50], [0, 100.0, 40], [0, 0, 1]])
+    target = np.array([0.0, 3.0, 1.0])
+    eyes = {0: [0, 0, 1], 1: [0.05, 0, 1], 2: [0.64, 0, 1], 3: [2.5, 0, 1]}  # ~1, ~12, ~40 deg at 3 m
+    poses = np.stack([look_at(np.array(e, float), target) for e in eyes.values()])
+    rng = np.random.default_rng(0)
+    points = target + rng.normal(scale=0.2, size=(200, 3))
+    sizes = np.array([[100, 80]] * 4)
+    chosen = select_sources_by_triangulation(poses, np.stack([K] * 4), sizes, 0, 2, points)
+    assert chosen[0] == 2
+    assert 1 not in chosen.tolist(), "a 1 degree baseline triangulates nothing"
