@@ -144,6 +144,7 @@ def prepare_capture(
     progress: Optional[ProgressCallback] = None,
     cancel: Optional[CancelToken] = None,
     check_poses: bool = False,
+    refine_when_off: bool = False,
 ) -> PreparedCapture:
     """`capture` in the world the network needs: posed, Z up, metric where a scale can be found.
 
@@ -152,7 +153,8 @@ def prepare_capture(
     `refine` refines the given poses against the photos first (`refine_options` tunes it); it is a
     note, not an error, when SfM estimated the poses here (already adjusted) or none are given.
     `check_poses` checks given poses that are not refined against the photos (a few seconds of
-    matching); poses that look off get a warning suggesting refinement.
+    matching); poses that look off get a warning suggesting refinement, or, with `refine_when_off`,
+    are refined right away (the check and what moved are recorded; stereo and colours then use them).
     Raises PoseError for a bad camera height or known distance, when SfM finds no poses, or when the
     refinement fails or looks like a failure (its message has the numbers).
     """
@@ -175,7 +177,9 @@ def prepare_capture(
         return prepared
     refinement = None
     points, colors = capture.points, capture.point_colors  # the capture's own (a COLMAP model's points3D)
-    if refine:
+    check, check_note = (_check_given_poses(capture, progress, cancel) if check_poses and not refine else (None, None))
+    refined_because_off = bool(refine_when_off and check is not None and check.poses_off)
+    if refine or refined_because_off:
         from . import refine_poses  # at call time, so tests can stand in for `engine.poses.refine_poses`
 
         refinement = refine_poses(capture, refine_options, progress=progress, cancel=cancel)
@@ -191,8 +195,17 @@ def prepare_capture(
     prepared = PreparedCapture(aligned, alignment.scale_source, alignment.description, warnings,
                                similarity=alignment.similarity, refinement=refinement, points=alignment.points,
                                point_colors=colors)
-    if check_poses and not refine:
-        _check_poses(prepared, capture, progress, cancel)
+    prepared.pose_check = check
+    if check_note:
+        prepared.notes.append(check_note)
+    if refined_because_off:
+        assert check is not None and check.mean_reprojection_error_px is not None
+        prepared.notes.append(f"the given poses disagreed with the photos ({check.mean_reprojection_error_px:.2f} px mean "
+                              f"reprojection error), so they were refined before reconstruction ({KEEP_POSES_HINT})")
+    elif check is not None and check.poses_off:
+        prepared.warnings.append(check.message)
+    elif check is not None and check.message:
+        prepared.notes.append(check.message)
     # Given non-metric poses (a COLMAP model): the floor and ceiling in its sparse points only, so
     # importing a capture stays quick.
     return _with_metric_scale(prepared, camera_height, dense=False, progress=progress, cancel=cancel)
@@ -241,29 +254,23 @@ def _with_sfm(
                            points=result.points, point_colors=result.point_colors)
 
 
-def _check_poses(
-    prepared: PreparedCapture, capture: Capture, progress: Optional[ProgressCallback], cancel: Optional[CancelToken]
-) -> None:
-    """Check the given poses of `capture` against its photos; a warning on `prepared` when they look
-    off, a note when they could not be checked (a similarity does not change the reprojection error,
-    so the capture's own world serves)."""
-    from .quality import MIN_CHECK_FRAMES, check_given_poses
+KEEP_POSES_HINT = "--keep-poses, or Keep Given Poses in Blender, uses them as given"
+
+
+def _check_given_poses(capture: Capture, progress: Optional[ProgressCallback], cancel: Optional[CancelToken]
+                       ) -> tuple[Optional["PoseCheck"], Optional[str]]:
+    """Check the given poses of `capture` against its photos: the check, or None and a note saying why
+    they could not be checked (too few posed photos, COLMAP could not run: the poses are used as given)."""
+    from .quality import MIN_CHECK_FRAMES, check_given_poses  # pycolmap's worker: only when a check runs
 
     checkable = [f for f in capture.frames if f.pose is not None and f.K is not None]
     if len(checkable) < MIN_CHECK_FRAMES:
-        prepared.notes.append(f"the given poses were not checked against the photos: {len(checkable)} posed photos "
-                              f"with intrinsics, the check needs {MIN_CHECK_FRAMES}")
-        return
+        return None, (f"the given poses were not checked against the photos: {len(checkable)} posed photos "
+                      f"with intrinsics, the check needs {MIN_CHECK_FRAMES}")
     try:
-        check = check_given_poses(capture, progress=progress, cancel=cancel)
-    except PoseError as error:  # COLMAP could not run: the poses are used as given
-        prepared.notes.append(f"the given poses could not be checked against the photos: {error}")
-        return
-    prepared.pose_check = check
-    if check.poses_off:
-        prepared.warnings.append(check.message)
-    elif check.message:
-        prepared.notes.append(check.message)
+        return check_given_poses(capture, progress=progress, cancel=cancel), None
+    except PoseError as error:
+        return None, f"the given poses could not be checked against the photos: {error}"
 
 
 def _with_metric_scale(

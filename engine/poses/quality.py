@@ -92,7 +92,7 @@ MIN_CHECK_FRAMES = 8  # fewer posed photos than this: too few neighbours to matc
 POSE_CHECK_MAX_SIDE = 640  # photos downscaled to this larger side: the threshold is in these pixels
 POSE_CHECK_MAX_FRAMES = 24  # evenly spaced frames checked (their neighbours by pose are matched)
 MAX_GIVEN_POSE_ERROR_PX = 1.0  # mean reprojection error above which the given poses are called off
-REFINE_SUGGESTION = "refine them against the photos: --refine-poses (engine reconstruct, vortx_batch.py), " \
+REFINE_SUGGESTION = "refine them against the photos: engine reconstruct and vortx_batch.py do so unless --keep-poses, " \
                     "engine poses --refine, or Refine Poses in Blender"
 
 

@@ -47,6 +47,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's own poses against the photos before reconstructing (for slightly-off "
                              "tracker, ARKit or SLAM poses; the report gives each frame's change)")
+    parser.add_argument("--keep-poses", action="store_true",
+                        help="use the capture's own poses as given, even when the check against the photos finds them off "
+                             "(by default such poses are refined before stereo, and the report says what moved)")
     parser.add_argument("--preview", action="store_true",
                         help="beside a .glb, also write <name>.html, a preview page (model-viewer: orbit and AR) that needs "
                              "no network; serve the folder to open it (python3 -m http.server)")
@@ -84,6 +87,9 @@ def run(args: argparse.Namespace) -> int:
         raise VortxError(f"--out {out}: the mesh file must end in .ply, .obj, .glb or .usdz")
     if getattr(args, "preview", False) and out.suffix.lower() != ".glb":
         raise VortxError(f"--preview: the preview page shows a .glb, not {out.name}")
+    if args.refine_poses and args.keep_poses:
+        raise VortxError("--refine-poses and --keep-poses contradict each other: give one (neither: poses are refined "
+                         "when the check against the photos finds them off)")
     settings = settings_from_args(args)
     settings.validate()
     refuse_ignored_settings(settings, given_settings(args))  # before the capture loads: an early, clear error
@@ -104,9 +110,11 @@ def run(args: argparse.Namespace) -> int:
     progress = TqdmProgress(disable=args.quiet)
     try:
         # Photos without poses get structure from motion first, as `python -m engine poses` would.
-        # Given poses that are not refined are checked against the photos: a warning when they look off.
+        # Given poses that are not refined are checked against the photos; poses that look off are refined
+        # (--keep-poses: a warning instead).
         prepared = prepare_capture(capture, camera_height=args.camera_height, sfm=SFM_IF_UNPOSED,
-                                   refine=args.refine_poses, progress=progress, check_poses=True)
+                                   refine=args.refine_poses, progress=progress, check_poses=True,
+                                   refine_when_off=not args.keep_poses)
         report_preparation(prepared)
         # Reconstructed in the world, written in the frame asked for (output_frame.py).
         to_output = world_to_output(prepared, settings.frame)

@@ -66,11 +66,39 @@ def test_given_poses_a_degree_or_two_off_are_called_off_and_true_ones_are_not():
     assert off.pose_check is not None and off.pose_check.poses_off
     assert off.pose_check.mean_reprojection_error_px > 1.0
     warning = next(w for w in off.warnings if "look off" in w)
-    assert "--refine-poses" in warning and f"{off.pose_check.mean_reprojection_error_px:.2f} px" in warning
+    assert "--keep-poses" in warning and f"{off.pose_check.mean_reprojection_error_px:.2f} px" in warning
     assert off.summary()["pose_check"]["poses_off"] is True
     # The poses themselves are used as given: the check only reports.
     assert np.allclose(off.capture.frames[0].pose, _demo_capture(
         lambda truth: perturbed_poses(truth, np.random.default_rng(1))).frames[0].pose)
+
+
+def _rotation_errors_deg(capture: Capture, truth: list[np.ndarray]) -> np.ndarray:
+    """Each frame's relative rotation to frame 0 against the truth's (a similarity cannot hide it)."""
+    errors = []
+    for f, t in zip(capture.frames[1:], truth[1:]):
+        rel = capture.frames[0].pose[:3, :3].T @ f.pose[:3, :3]
+        rel_true = truth[0][:3, :3].T @ t[:3, :3]
+        errors.append(np.degrees(np.arccos(np.clip((np.trace(rel.T @ rel_true) - 1) / 2, -1, 1))))
+    return np.array(errors)
+
+
+def test_poses_found_off_are_refined_when_asked_and_the_note_says_so():
+    truth = _demo_capture(lambda poses: poses)
+    off = _demo_capture(lambda poses: perturbed_poses(poses, np.random.default_rng(1)))
+    true_poses = [f.pose for f in truth.frames]
+    prepared = prepare_capture(off, sfm=SFM_NEVER, check_poses=True, refine_when_off=True)
+    assert prepared.pose_check is not None and prepared.pose_check.poses_off
+    assert prepared.refinement is not None and prepared.refinement.refined
+    assert any("refined before reconstruction" in n and "--keep-poses" in n for n in prepared.notes)
+    assert not any("look off" in w for w in prepared.warnings)
+    assert prepared.summary()["refined"] is True
+    before = _rotation_errors_deg(off, true_poses)
+    after = _rotation_errors_deg(prepared.capture, true_poses)
+    assert np.median(after) < 0.5 * np.median(before), "the refined poses are what the reconstruction gets"
+    # Poses that fit are left as they are, with the same setting.
+    exact = prepare_capture(truth, sfm=SFM_NEVER, check_poses=True, refine_when_off=True)
+    assert exact.refinement is None
 
 
 def test_too_few_photos_are_not_checked_and_say_so():
