@@ -43,6 +43,10 @@ def test_vr_flag_parses_with_the_texture_settings() -> None:
     args = parse_arguments(["cap", "--out", "a.blend", *VR])
     assert args.vr and args.settings.texture_size == 512 and args.settings.face_budget == 300
     assert not parse_arguments(["cap", "--out", "a.blend"]).vr
+    standalone = parse_arguments(["cap", "--out", "a.blend", "--vr", "--headset", "standalone"]).settings
+    assert standalone.texture_options.texture_format == "ktx2-etc1s"  # what Bake Texture and the export then use
+    with pytest.raises(SystemExit):  # a headset without a textured result is refused like the other texture flags
+        parse_arguments(["cap", "--out", "a.blend", "--headset", "web"])
     with pytest.raises(SystemExit):  # the engine's own check of the texture size
         parse_arguments(["cap", "--out", "a.blend", "--vr", "--texture-size", "1000"])
 
