@@ -66,7 +66,7 @@ from engine.recon.presets import (add_quality_argument, quality_of, refuse_unuse
 from engine.recon.settings import (ReconSettings, add_setting_arguments, given_settings,  # noqa: E402
                                    refuse_ignored_settings, refuse_untextured_settings)
 
-EXPORT_SUFFIXES = (".glb", ".gltf", ".ply", ".obj")
+EXPORT_SUFFIXES = (".glb", ".gltf", ".ply", ".obj", ".usdz")
 REPORT_SUFFIX = ".report.json"
 BATCH_REPO = "vortx_checkout"  # repository name when this checkout is mounted: bl_ext.vortx_checkout.vortx
 
@@ -93,7 +93,7 @@ def argument_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, required=True,
                         help="the .blend file to write (one capture), or the folder for NAME.blend and NAME.report.json")
     parser.add_argument("--export", type=Path,
-                        help="also write the mesh: .glb/.gltf (VR), .ply or .obj; with an --out folder, only the suffix counts")
+                        help="also write the mesh: .glb/.gltf (VR), .ply, .obj or .usdz (Apple); with an --out folder, only the suffix counts")
     add_quality_argument(parser)  # --quality preview|standard|high, as `engine reconstruct` (engine/recon/presets.py)
     add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
