@@ -63,9 +63,13 @@ def paragraph(layout: Any, text: str, width_px: float, icon: str = "NONE") -> No
 
 
 def progress_bar(layout: Any, job: Job, width_px: float = sidebar.CONTENT_PX) -> None:
-    """The job's progress bar, its text (stage and counts) shortened to the bar: the status bar has it whole."""
-    layout.progress(text=sidebar.shorten(job.panel_text(), width_px - sidebar.BUTTON_PAD_PX),
-                    factor=job.progress.fraction, type="BAR")
+    """The job's progress bar: its stage, counts and detail, without the detail when that does not fit
+    (the status bar and the viewport's tiles have it), shortened only when even the stage does not."""
+    room = width_px - sidebar.BUTTON_PAD_PX
+    text = job.panel_text()
+    if sidebar.text_width(text) > room:
+        text = sidebar.shorten(job.panel_text(detail=False), room)
+    layout.progress(text=text, factor=job.progress.fraction, type="BAR")
 
 
 def poses_line(settings: Any) -> str:

@@ -175,15 +175,16 @@ class Job(Generic[T]):
         detail = f", {detail}" if detail else ""
         return f"VoRTX {self.title}: {p.stage}{steps}{detail}  (Esc to cancel)"
 
-    def panel_text(self) -> str:
-        """The progress bar's text in the sidebar: the stage and counts (the panel and the button say
-        which job it is, the status bar has `status_text` with how to cancel)."""
+    def panel_text(self, detail: bool = True) -> str:
+        """The progress bar's text in the sidebar: the stage and counts, and with `detail` the job's
+        detail (tiles done); the panel and the button say which job it is, the status bar has
+        `status_text` with how to cancel."""
         if self.cancel_requested and not self.finished:
             return "Cancelling..."
         p = self.progress
         steps = f" {p.done}/{p.total}" if p.total > 0 else ""
-        detail = self._detail() if self._detail is not None else ""
-        return f"{p.stage}{steps}" + (f", {detail}" if detail else "")
+        extra = self._detail() if detail and self._detail is not None else ""
+        return f"{p.stage}{steps}" + (f", {extra}" if extra else "")
 
 
 def cancel_active(timeout: float = 5.0) -> None:
