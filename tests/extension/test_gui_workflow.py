@@ -26,8 +26,8 @@ import gui_workflow  # noqa: E402  (scripts/ is not a package)
 
 STEPS = [
     "open the VoRTX sidebar", "Import Capture", "Estimate Poses", "Reconstruct with VoRTX, tiles shown, then Esc",
-    "Reconstruct with Stereo (the default method)", "Show Observation", "Bake Texture", "Export Result (GLB)",
-    "scroll the sidebar to its last panels",
+    "Reconstruct with Stereo (the default method) at the Preview quality", "Show Observation", "Bake Texture",
+    "Export Result (GLB)", "open the closed sub-panels and scroll the sidebar to its last panels",
 ]
 
 
@@ -62,6 +62,24 @@ def test_whole_workflow_in_a_blender_window(gui_root: Path) -> None:
         assert pixels.std() > 10 and pixels.mean() > 20, (shot, pixels.mean(), pixels.std())
     sidebars = [s for s in report["shots"] if s["file"].endswith(".png")]
     assert len(sidebars) >= 5 and all(s["bytes"] < 300_000 for s in report["shots"])
+    # The window the label widths were measured in (ui/sidebar.py) is the one this run had: the same
+    # sidebar size and UI scale, and the window's text widths are the ones the width check computes.
+    sidebar = _sidebar_module()
+    measured = report["sidebar"]
+    assert (measured["width"], measured["height"]) == (sidebar.SIDEBAR_PX, sidebar.SIDEBAR_HEIGHT_PX)
+    assert measured["ui_scale"] == pytest.approx(sidebar.WINDOW_SCALE, abs=1e-4)
+    assert measured["text_widths"] == {text: sidebar.text_width(text) for text in measured["text_widths"]}
+
+
+def _sidebar_module():
+    import importlib.util
+
+    import bpy  # noqa: F401  (blf comes with it)
+
+    spec = importlib.util.spec_from_file_location("vortx_sidebar", REPO / "ui" / "sidebar.py")  # no relative imports
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def test_a_missing_root_is_named_with_what_to_do(tmp_path: Path) -> None:
