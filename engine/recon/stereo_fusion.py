@@ -45,8 +45,11 @@ def stereo_options(settings: ReconSettings, device: torch.device) -> StereoOptio
 def stereo_depth_maps(
     capture: Capture, plan: ReconPlan, options: StereoOptions,
     progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
+    stages: Optional[dict[str, float]] = None,
 ) -> list[DepthMap]:
-    """Depth maps of (up to `options.max_references`) keyframes; sources come from every posed frame.
+    """Depth maps of (up to `options.max_references`) keyframes; sources come from every posed frame
+    (the sweep) or from the other keyframes (PatchMatch, whose geometric passes need their maps).
+    `stages` receives the matcher's stage seconds.
 
     DepthMap.frame indexes `plan.keyframes`.
     """
@@ -60,7 +63,7 @@ def stereo_depth_maps(
     # Sparse SfM points, when the capture carries them, give each view a tight depth range.
     points = capture.points if capture.points is not None and len(capture.points) else None
     maps = estimate_depth_maps(frames, poses, references, options, points=points, bounds=bounds, progress=progress,
-                               cancel=cancel)
+                               cancel=cancel, stages=stages)
     for m, k in zip(maps, chosen):
         m.frame = int(k)
     return maps
@@ -144,8 +147,9 @@ def run_stereo_fusion(
                       "tiles": {"count": len(plan.tiles), "active": len(plan.active_tiles)}})
         for tile in plan.active_tiles:
             tile.state = TileState.RUNNING
+        stereo_stages: dict[str, float] = {}
         with timer.stage("stereo depth"):
-            maps = stereo_depth_maps(capture, plan, options, progress, cancel)
+            maps = stereo_depth_maps(capture, plan, options, progress, cancel, stereo_stages)
         span_warning = depth_span_warning(plan, maps, settings.max_room_size)
         if span_warning is not None:
             plan.warnings.append(span_warning)
@@ -153,6 +157,7 @@ def run_stereo_fusion(
             "references": len(maps), "image_size": list(maps[0].depth.shape[::-1]) if maps else [],
             "completeness_mean": round(float(np.mean([m.completeness for m in maps])), 4) if maps else 0.0,
             "options": {k: v for k, v in vars(options).items() if k != "device"},
+            "stages_s": {k: round(v, 4) for k, v in stereo_stages.items()},
         }
         check(cancel)
         with timer.stage("TSDF fusion"):

@@ -11,6 +11,8 @@
 
 from __future__ import annotations
 
+from typing import Optional
+
 import cv2
 import numpy as np
 
@@ -53,11 +55,17 @@ def median_depth(depth: np.ndarray, size: int = MEDIAN_SIZE, tolerance: float = 
     return np.where(depth > 0, np.where(keep_own, depth, median), 0.0).astype(np.float32)
 
 
-def observation_weights(depth: np.ndarray, confidence: np.ndarray, K: np.ndarray) -> np.ndarray:
+def observation_weights(depth: np.ndarray, confidence: np.ndarray, K: np.ndarray,
+                        normals: Optional[np.ndarray] = None) -> np.ndarray:
     """(H, W) float32 weight of each depth in fusion: confidence x max(cos(view angle), MIN_COSINE) /
-    (depth / REFERENCE_ERROR_DEPTH)^2; 0 where there is no depth."""
+    (depth / REFERENCE_ERROR_DEPTH)^2; 0 where there is no depth. The viewing angle comes from
+    `normals` (H, W, 3) when the matcher estimated them (PatchMatch's planes), else from the depth map's
+    own differences (noisy on a sweep's stepped depths)."""
     h, w = depth.shape
-    normals, ok = depth_normals(depth, K)
+    if normals is not None:
+        ok = np.linalg.norm(normals, axis=-1) > 0.5
+    else:
+        normals, ok = depth_normals(depth, K)
     v, u = np.mgrid[0:h, 0:w].astype(np.float64)
     rays = np.stack([(u + 0.5 - K[0, 2]) / K[0, 0], (v + 0.5 - K[1, 2]) / K[1, 1], np.ones((h, w))], axis=-1)
     rays /= np.linalg.norm(rays, axis=-1, keepdims=True)

@@ -8,6 +8,7 @@ reference a good baseline.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Optional, Sequence
 
@@ -119,8 +120,10 @@ def estimate_depth_maps(
     bounds: Optional[tuple[np.ndarray, np.ndarray]] = None,
     progress: Optional[ProgressCallback] = None,
     cancel: Optional[CancelToken] = None,
+    stages: Optional[dict[str, float]] = None,
 ) -> list[DepthMap]:
-    """Depth maps for `references` (positions in `frames`), matched against any of `frames`.
+    """Depth maps for `references` (positions in `frames`), matched against any of `frames` (the sweep)
+    or against the other references (PatchMatch). `stages` receives seconds per stage.
 
     frames: posed frames with K; poses (F, 4, 4) camera-to-world (the frames' poses, metres);
     points: optional (N, 3) sparse points for the depth ranges; bounds: optional (min, max) of the
@@ -141,7 +144,8 @@ def estimate_depth_maps(
         return images[i]
 
     if options.matcher == MATCHER_PATCHMATCH:
-        return _patchmatch_maps(frames, poses, references, options, image, points, bounds, progress, cancel)
+        return _patchmatch_maps(frames, poses, references, options, image, points, bounds, progress, cancel,
+                                stages if stages is not None else {})
     heights = ground_heights(points, bounds)
     maps: list[DepthMap] = []
     for done, r in enumerate(references):
@@ -243,7 +247,7 @@ def patchmatch_sources(poses: np.ndarray, Ks: np.ndarray, sizes: np.ndarray, ref
 def _patchmatch_maps(
     frames: Sequence[Frame], poses: np.ndarray, references: Sequence[int], options: StereoOptions, image,
     points: Optional[np.ndarray], bounds: Optional[tuple[np.ndarray, np.ndarray]],
-    progress: Optional[ProgressCallback], cancel: Optional[CancelToken],
+    progress: Optional[ProgressCallback], cancel: Optional[CancelToken], stages: dict[str, float],
 ) -> list[DepthMap]:
     """PatchMatch depth and normal maps of `references` (patchmatch_views.py), matched against the
     other references (whose maps the geometric-consistency passes need), then filtered: kept where
@@ -263,7 +267,8 @@ def _patchmatch_maps(
                                   fine_iterations=options.fine_iterations, geometric_passes=options.geometric_passes)
     local_image = lambda i: image(references[i])  # noqa: E731
     planes = patchmatch_views(list(range(len(references))), lambda i: sources[i], local_image, ref_poses, ranges,
-                              schedule, device, progress=progress, cancel=cancel)
+                              schedule, device, progress=progress, cancel=cancel, stages=stages)
+    started = time.perf_counter()
     maps = []
     max_cost = 1.0 - options.min_ncc
     for i, (r, plane) in enumerate(zip(references, planes)):
@@ -277,6 +282,7 @@ def _patchmatch_maps(
     for m in maps:
         speckles = remove_speckles(m.depth)
         m.depth[speckles], m.confidence[speckles] = 0.0, 0.0
+    stages["depth filter"] = time.perf_counter() - started
     return maps
 
 

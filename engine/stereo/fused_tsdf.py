@@ -84,7 +84,7 @@ def fuse_stereo_evidence(
     dims = tuple(int(d) for d in dims)
     if not maps:
         return FusedStereo(np.ones(dims, np.float32), np.zeros(dims, np.float32), np.zeros(dims, np.float32))
-    evidence = FusionEvidence([observation_weights(m.depth, m.confidence, m.K) for m in maps])
+    evidence = FusionEvidence([observation_weights(m.depth, m.confidence, m.K, m.normal) for m in maps])
     tsdf, observations = fuse_tsdf([m.depth for m in maps], np.stack([m.K for m in maps]), np.stack([m.pose for m in maps]),
                                    origin, dims, voxel_size, truncation_voxels * voxel_size, depth_cap=None,
                                    device=device, progress=progress, cancel=cancel, evidence=evidence)

@@ -4,9 +4,8 @@ geometric-consistency passes over all views together.
 Per reference (`photometric_planes`): the planes start at the coarsest scale from an initial depth
 (the fast sweep's, where it found one) with fronto-parallel normals and random planes elsewhere, run
 `coarse_iterations` of PatchMatch, and carry to each finer scale (twice the size), where
-`fine_iterations` refine them. The coarse planes are a prior for weakly textured windows: a fine
-pixel whose window has almost no texture keeps the coarse plane unless a candidate matches clearly
-better.
+`fine_iterations` refine them: a weakly textured area takes its planes from the coarse scale, where
+the same window covers four times the surface.
 
 Then (`geometric_passes`), with every reference's depth map known, each reference is rescored with
 the forward-backward reprojection error into its sources' depth maps and refined for
@@ -18,6 +17,7 @@ Tensors on `device`; images (h, w) grey in [0, 1]; K in pixels of their image; p
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Callable, Optional, Sequence
 
@@ -167,10 +167,13 @@ def patchmatch_views(
     references: Sequence[int], sources_of: Callable[[int], Sequence[int]], image: ImageSource, poses: np.ndarray,
     depth_ranges: Sequence[tuple[float, float]], schedule: PatchMatchSchedule, device: torch.device,
     initial_depths: Optional[Sequence[Optional[np.ndarray]]] = None, progress: Optional[ProgressCallback] = None,
-    cancel: Optional[CancelToken] = None,
+    cancel: Optional[CancelToken] = None, stages: Optional[dict[str, float]] = None,
 ) -> list[PlaneMap]:
     """PlaneMaps of `references` (positions into `poses` and `image`), each matched against
-    `sources_of(reference)`; geometric passes use the maps of the sources that are references too."""
+    `sources_of(reference)`; geometric passes use the maps of the sources that are references too.
+    `stages` receives the seconds of the photometric and the geometric stage."""
+    stages = stages if stages is not None else {}
+    started = time.perf_counter()
     states: list[tuple[PlaneState, ReferenceWindows]] = []
     steps = len(references) * (1 + schedule.geometric_passes)
     for done, r in enumerate(references):
@@ -180,6 +183,8 @@ def patchmatch_views(
         states.append(photometric_planes(img, K, poses[r], [image(s)[0] for s in srcs], [image(s)[1] for s in srcs],
                                          [poses[s] for s in srcs], depth_ranges[done], schedule, device,
                                          None if initial_depths is None else initial_depths[done], cancel))
+    stages["patchmatch"] = time.perf_counter() - started
+    started = time.perf_counter()
     position = {int(r): i for i, r in enumerate(references)}
     iteration = schedule.coarse_iterations + (schedule.scales - 1) * schedule.fine_iterations
     for p in range(schedule.geometric_passes):
@@ -194,6 +199,7 @@ def patchmatch_views(
                                  iteration, cancel)
         iteration += schedule.geometric_iterations
     report(progress, "patchmatch", steps, steps)
+    stages["geometric consistency"] = time.perf_counter() - started
     maps = []
     for done, (r, (state, ref)) in enumerate(zip(references, states)):
         srcs = list(sources_of(r))

@@ -34,3 +34,14 @@ def test_completeness_errors_normals_and_confidence_calibration() -> None:
     assert 0.3 < scores["normals_30deg"] < 0.8
     assert scores["confidence_spearman"] < -0.5, "the confident half is the accurate one"
     assert scores["confidence_quartiles"][-1] < scores["confidence_quartiles"][0]
+
+
+def test_a_map_scaled_by_its_poses_is_right_after_its_own_scale_is_taken_out() -> None:
+    rng = np.random.default_rng(1)
+    true = rng.uniform(1.0, 3.0, (60, 80)).astype(np.float32)
+    pred = true * 1.12  # a pose scale 12 % off moves every depth 12 %
+    pred[:, :20] = true[:, :20] * 1.40  # a quarter of the map wrong beyond any scale
+    scores = compare_depth(pred, np.full_like(pred, 0.8), true, K)
+    assert scores["within_5pct"] == 0.0
+    assert np.isclose(scores["scale"], 1.12, atol=1e-3)
+    assert np.isclose(scores["within_5pct_scaled"], 0.75, atol=1e-6)
