@@ -243,6 +243,10 @@ def write_textured(path: PathLike, mesh: TexturedMesh, extras: Optional[dict[str
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".glb":
+        if preview:  # what the page needs is checked before anything is written
+            from .encoders import model_viewer_files
+
+            model_viewer_files(f"the preview page of {path.name} (--preview)")
         written = [write_glb(path, mesh, extras=extras, options=options)]
         if preview:
             from .preview import write_preview
