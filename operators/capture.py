@@ -22,7 +22,14 @@ from ..vortx_blender.capture import (
 from ..vortx_blender.job_operator import JobOperatorMixin
 from ..vortx_blender.jobs import JobFunction
 from ..vortx_blender.point_cloud import apply_point_cloud, checked_points, find_point_cloud
-from ..vortx_blender.poses import PosedCapture, PoseSettings, RefinedPoses, estimate_poses_job, refine_poses_job
+from ..vortx_blender.poses import (
+    PosedCapture,
+    PoseSettings,
+    RefinedPoses,
+    apply_refined_poses,
+    estimate_poses_job,
+    refine_poses_job,
+)
 from ..vortx_blender.properties import POSES_REFINED, recon_field, recon_property
 from ..vortx_blender.scale import picked_points, set_scale
 
@@ -157,14 +164,7 @@ class VORTX_OT_refine_poses(JobOperatorMixin, bpy.types.Operator):
 
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: RefinedPoses) -> set[str]:
         refined = result.result
-        move_capture_cameras(scene, [f.pose for f in refined.capture.posed_frames])
-        if find_point_cloud(scene) is None and len(refined.points):
-            apply_point_cloud(scene, *checked_points(refined.points, refined.point_colors))
-        settings = scene.vortx
-        if "refined" not in settings.pose_status:
-            settings.pose_status = f"{settings.pose_status}, refined"
-        settings.pose_source = POSES_REFINED
-        print(refined.report)
+        apply_refined_poses(scene, refined)
         _report_applied(self, result.summary(), result.frame_warnings() + list(refined.warnings))
         return {"FINISHED"}
 

@@ -19,6 +19,7 @@ from ..vortx_blender import tile_overlay
 from ..vortx_blender.export import FILE_GLOB, FORMATS, export_result
 from ..vortx_blender.job_operator import JobOperatorMixin
 from ..vortx_blender.jobs import JobFunction
+from ..vortx_blender.poses import RefinedPoses, apply_refined_poses
 from ..vortx_blender.texture import PROP_TEXTURE
 from ..vortx_blender.reconstruct import (
     CleanupOptions,
@@ -56,6 +57,10 @@ class VORTX_OT_reconstruct(JobOperatorMixin, bpy.types.Operator):
             target_faces=target, depsgraph=context.evaluated_depsgraph_get() if target > 0 else None,
         )
         results.show_vertex_colours(context.screen)
+        if outcome.refined is not None:
+            apply_refined_poses(scene, outcome.refined)
+            self.report({"INFO"}, f"The given poses looked off against the photos and were refined first: "
+                                  f"{RefinedPoses(outcome.refined).summary()} (Keep Given Poses skips this)")
         for warning in outcome.warnings:
             self.report({"WARNING"}, warning)
         removed = f", {outcome.pieces.removed_pieces} small pieces removed" if outcome.pieces.removed_pieces else ""

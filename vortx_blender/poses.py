@@ -18,8 +18,11 @@ from ..engine.capture import Capture
 from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.poses.prepare import SFM_ALWAYS, PreparedCapture, prepare_capture
 from ..engine.poses.refine import STATUS_REFINED
+from .cameras import move_capture_cameras
 from .capture import scene_camera_height
 from .jobs import JobFunction
+from .point_cloud import apply_point_cloud, checked_points, find_point_cloud
+from .properties import POSES_REFINED
 
 if TYPE_CHECKING:
     from ..engine.poses import RefineOptions, RefineResult
@@ -119,3 +122,17 @@ def refine_poses_job(capture: Capture, options: Optional["RefineOptions"] = None
         return RefinedPoses(refine_poses(capture, options, progress=progress, cancel=cancel))
 
     return run
+
+
+def apply_refined_poses(scene: "bpy.types.Scene", refined: "RefineResult") -> None:
+    """Move the scene's capture cameras to `refined`'s poses (main thread), add its sparse points when
+    the scene has none, and record that the poses were refined (which clears the pose check's warning)."""
+    move_capture_cameras(scene, [f.pose for f in refined.capture.posed_frames])
+    if find_point_cloud(scene) is None and len(refined.points):
+        apply_point_cloud(scene, *checked_points(refined.points, refined.point_colors))
+    settings = scene.vortx
+    if "refined" not in settings.pose_status:
+        settings.pose_status = f"{settings.pose_status}, refined"
+    settings.pose_source = POSES_REFINED
+    settings.pose_check = ""
+    print(refined.report)

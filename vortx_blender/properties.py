@@ -179,6 +179,12 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
         name="Pose Check",
         description="What checking the capture's own poses against the photos found when they look off (empty when they fit or were not checked)",
     )
+    keep_given_poses: BoolProperty(
+        name="Keep Given Poses",
+        description="Reconstruct with the capture's own poses even when the check against the photos finds them off "
+                    "(by default Reconstruct refines such poses first, as Refine Poses does, and moves the cameras)",
+        default=False,
+    )
     skipped_count: IntProperty(name="Skipped Photos", description="Photos left out of the capture because they cannot be used", min=0)
     skipped_names: StringProperty(name="Skipped", description="The first photos left out (the import report names all of them and why)")
     capture_frame: StringProperty(

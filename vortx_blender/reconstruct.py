@@ -19,6 +19,7 @@ from ..engine.errors import PoseError, VortxError, WeightsError
 from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.mesh_io import Mesh
 from ..engine.meshops import PieceStats, remove_small_pieces
+from ..engine import poses as engine_poses  # its refine_poses looked up at call time: tests stand in for it
 from ..engine.poses.prepare import SFM_NEVER, prepare_capture
 from ..engine.recon.settings import BLENDER, ReconSettings, setting_fields, value_type
 from .cameras import posed_capture_from_scene
@@ -66,6 +67,7 @@ class ReconRequest:
     cleanup: CleanupOptions
     result_mode: str  # REPLACE / ADD
     capture_path: str
+    refine_poses: bool = False  # the pose check found the given poses off: refine them before stereo
 
 
 @dataclass
@@ -76,6 +78,7 @@ class ReconOutcome:
     mesh: Mesh  # the engine mesh after small-piece removal
     pieces: PieceStats
     warnings: list[str] = field(default_factory=list)
+    refined: Optional[engine_poses.RefineResult] = None  # the poses refined before reconstructing (request.refine_poses)
 
 
 def weights_from_scene(settings: Any) -> Optional[str]:
@@ -191,6 +194,8 @@ def request_from_scene(scene: "bpy.types.Scene") -> ReconRequest:
         cleanup=CleanupOptions.from_scene(settings),
         result_mode=settings.result_mode,
         capture_path=settings.capture_path,
+        # The same rule as `engine reconstruct`: given poses the photo check found off are refined first.
+        refine_poses=bool(settings.pose_check) and not settings.keep_given_poses,
     )
 
 
@@ -203,9 +208,14 @@ def reconstruct_job(request: ReconRequest, on_tiles: Callable[[list["Tile"]], No
 
         if request.settings.weights is None:
             _check_default_weights()
-        plan = plan_reconstruction(request.capture, request.settings, progress, cancel)
+        capture, refined = request.capture, None
+        if request.refine_poses:
+            # In the scene's world already: the refinement fits its result back onto the given poses.
+            refined = engine_poses.refine_poses(capture, progress=progress, cancel=cancel)
+            capture = refined.capture
+        plan = plan_reconstruction(capture, request.settings, progress, cancel)
         on_tiles(plan.tiles)
-        result = driver.reconstruct(request.capture, request.settings, progress, cancel, plan=plan)
+        result = driver.reconstruct(capture, request.settings, progress, cancel, plan=plan)
         if result.is_empty:
             raise VortxError(f"No mesh: {result.message}")
         cancel.check()
@@ -216,7 +226,8 @@ def reconstruct_job(request: ReconRequest, on_tiles: Callable[[list["Tile"]], No
                 f"every one of the {pieces.pieces} mesh pieces is smaller than the minimum piece size; "
                 "lower Min Piece Faces / Min Piece Size"
             )
-        return ReconOutcome(result, mesh, pieces, list(result.warnings))
+        warnings = (list(refined.warnings) if refined is not None else []) + list(result.warnings)
+        return ReconOutcome(result, mesh, pieces, warnings, refined)
 
     return run
 

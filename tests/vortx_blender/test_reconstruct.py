@@ -484,3 +484,55 @@ def test_modal_run_shows_tiles_in_the_status_bar_and_esc_cancels(blender, captur
     assert results_in(blender, scene) == ["living_room"]
     assert context.workspace.status[-1] is None and context.window_manager.timers == set()
     assert set(blender.vortx_blender.tile_overlay.current(scene).states()) <= {"done", "empty"}
+
+
+def _refined_stand_in(blender, capture, shift: np.ndarray):
+    """A RefineResult that moves every posed frame by `shift` metres."""
+    refine = importlib.import_module(f"{blender.__name__}.engine.poses.refine")
+    poses_pkg = importlib.import_module(f"{blender.__name__}.engine.poses")
+    frames, changes = [], []
+    for frame in capture.frames:
+        pose = frame.pose.copy()
+        pose[:3, 3] += shift
+        frames.append(dataclasses.replace(frame, pose=pose))
+        changes.append(refine.FrameChange(frame.name, 0.3, float(np.linalg.norm(shift)), refine.STATUS_REFINED))
+    return refine.RefineResult(
+        capture=capture.with_frames(frames), changes=changes, units="m", points=np.zeros((0, 3)),
+        point_colors=np.zeros((0, 3), np.uint8), mean_reprojection_error=0.4, scaled_size=(96, 72), rounds=2,
+        similarity=poses_pkg.Similarity.identity())
+
+
+@pytest.mark.parametrize("keep", [False, True])
+def test_poses_the_check_found_off_are_refined_before_reconstructing(blender, capture_dir, fake_engine, monkeypatch,
+                                                                     keep: bool) -> None:
+    import bpy
+
+    poses_pkg = importlib.import_module(f"{blender.__name__}.engine.poses")
+    scene = posed_scene(blender, capture_dir)
+    scene.vortx.pose_check = "the photos say the given poses look off: 1.8 px mean reprojection error"
+    scene.vortx.keep_given_poses = keep
+    cameras = sorted((o for o in bpy.data.objects if o.type == "CAMERA" and "vortx_frame" in o), key=lambda o: o["vortx_frame"])
+    before = [np.array(o["vortx_pose"]).reshape(4, 4) for o in cameras]
+    shift = np.array([0.02, -0.01, 0.0])
+    refined_inputs, reconstructed = [], []
+
+    def fake_refine(capture, options=None, progress=None, cancel=None):
+        refined_inputs.append(capture)
+        return _refined_stand_in(blender, capture, shift)
+
+    monkeypatch.setattr(poses_pkg, "refine_poses", fake_refine)
+    real_reconstruct = driver(blender).reconstruct
+    monkeypatch.setattr(driver(blender), "reconstruct", lambda capture, *a, **k: (reconstructed.append(capture),
+                                                                                   real_reconstruct(capture, *a, **k))[1])
+    assert bpy.ops.vortx.reconstruct() == {"FINISHED"}
+    after = [np.array(o["vortx_pose"]).reshape(4, 4) for o in cameras]
+    (used,) = reconstructed
+    if keep:
+        assert refined_inputs == [] and scene.vortx.pose_check, "Keep Given Poses: as given, the warning stays"
+        np.testing.assert_allclose(np.stack(after), np.stack(before))
+        return
+    assert len(refined_inputs) == 1
+    # Stereo and colours get the refined poses, and the scene's cameras move to them.
+    np.testing.assert_allclose(used.frames[0].pose[:3, 3], before[0][:3, 3] + shift, atol=1e-9)
+    np.testing.assert_allclose(after[0][:3, 3], before[0][:3, 3] + shift, atol=1e-6)
+    assert scene.vortx.pose_status.endswith(", refined") and scene.vortx.pose_check == ""
