@@ -34,9 +34,12 @@ import shutil
 import sys
 import tempfile
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Optional
+
+from .recon.settings import ReconSettings
+from .stereo.options import STEREO_MATCHERS
 
 MB = 2**20
 STEREO_CPU_BUDGET = 2.0  # stereo fusion may take this many times VoRTX's CPU seconds on the same capture
@@ -176,17 +179,22 @@ def stereo_cases(cases: tuple[Case, ...]) -> list[Case]:
     return list(chosen.values())
 
 
-def run_stereo_case(case: Case, device: str, workdir: Path) -> tuple[dict[str, Any], Any]:
-    """One run of the classical stereo method (default settings) on `case`'s capture and region.
-    -> (the run's numbers, its mesh: the texture bake's input)."""
+def run_stereo_case(case: Case, device: str, workdir: Path, matcher: Optional[str] = None) -> tuple[dict[str, Any], Any]:
+    """One run of the classical stereo method (default settings, or another `matcher`) on `case`'s
+    capture and region. -> (the run's numbers, its mesh: the texture bake's input)."""
     from .recon import ReconSettings, reconstruct
 
     capture = bench_capture(case, workdir)
-    result = reconstruct(capture, ReconSettings(method="stereo", device=device, max_room_size=case.region))
+    settings = ReconSettings(method="stereo", device=device, max_room_size=case.region)
+    if matcher is not None:
+        settings = replace(settings, stereo_matcher=matcher)
+    result = reconstruct(capture, settings)
     stats = result.stats
     total = stats["timings_s"]["total"]
     return {
         "case": case.name,
+        "matcher": settings.stereo_matcher,
+        "stereo_stages_s": stats["stereo"].get("stages_s", {}),
         "region_m": list(case.region),
         "frames": case.frames,
         "keyframes": stats["keyframes"],
@@ -332,6 +340,19 @@ def markdown(report: dict[str, Any]) -> str:
                 + f" | {t['total']:.1f} ({c['total']:.1f}) | {r['keyframes_per_s']:.2f} | {r['peak_rss_bytes'] / MB:.0f} "
                 f"| {v['cpu_ratio']:.2f}x | {v['extra_peak_rss_bytes'] / MB:+.0f} | {'yes' if v['within_budget'] else 'NO'} |"
             )
+    matcher_runs = [*report.get("stereo_runs", []), *report.get("matcher_runs", [])]
+    if report.get("matcher_runs"):
+        lines += ["", "Stereo matchers, same captures and regions, default settings otherwise (stereo depth split into "
+                  "its stages; seconds per keyframe of the stereo depth stage):", "",
+                  "| case | matcher | keyframes | image size | patchmatch s | geometric consistency s | depth filter s "
+                  "| stereo depth s | s per keyframe | total s (CPU s) | peak RSS MB |", "|---" * 11 + "|"]
+        for r in matcher_runs:
+            t, c, st = r["timings_s"], r["cpu_timings_s"], r.get("stereo_stages_s", {})
+            stages = " | ".join(f"{st[k]:.1f}" if k in st else "-" for k in ("patchmatch", "geometric consistency", "depth filter"))
+            lines.append(
+                f"| {r['case']} | {r.get('matcher', '')} | {r['keyframes']} | {'x'.join(map(str, r['stereo_image_size']))} | "
+                f"{stages} | {t.get('stereo depth', 0):.1f} | {t.get('stereo depth', 0) / max(1, r['references']):.2f} "
+                f"| {t['total']:.1f} ({c['total']:.1f}) | {r['peak_rss_bytes'] / MB:.0f} |")
     if report.get("evidence_runs"):
         lines += ["", "The learned method with stereo evidence, same captures and regions, default settings; "
                   f"budget: CPU time per keyframe <= {EVIDENCE_CPU_BUDGET:g}x stereo fusion's, peak RSS <= its + "
@@ -398,6 +419,14 @@ def run(args: argparse.Namespace) -> int:
             report["stereo_runs"].append(run)
             meshes.append((case, mesh))
             _save_partial(report, args.out)
+        report["matcher_runs"] = []
+        for case, _ in meshes:  # the other stereo matchers on the same captures, their stages apart
+            for matcher in STEREO_MATCHERS:
+                if matcher == ReconSettings.stereo_matcher:
+                    continue
+                print(f"running stereo fusion with the {matcher} matcher on {case.name} ...", file=sys.stderr, flush=True)
+                report["matcher_runs"].append(run_stereo_case(case, args.device, workdir, matcher)[0])
+                _save_partial(report, args.out)
         report["evidence_runs"] = []
         for case, _ in meshes:
             print(f"running the learned method with stereo evidence on {case.name} ...", file=sys.stderr, flush=True)

@@ -115,3 +115,17 @@ def test_learned_method_budget_is_one_and_a_half_times_stereo_per_keyframe_and_o
               "projected_memory": {"room_m": [10, 10, 3], "views": 60, "keyframes": 500, "image_size": [640, 480]}}
     assert ("| N=60, 2 m room | untrained (recipe widths) | 64 | 30.0 | 1.5 | 14.0 (20.0) | 2.2 | 48.0 (110.0) | 2400 "
             "| 1.38x | +900 | yes |") in markdown(report)
+
+
+def test_report_table_shows_each_matcher_with_its_stages_and_seconds_per_keyframe():
+    fast = {**_stereo_run(80.0, 1500), "matcher": "fast", "references": 64, "stereo_image_size": [200, 150]}
+    patchmatch = {**_stereo_run(300.0, 1800), "matcher": "patchmatch", "references": 64, "stereo_image_size": [320, 240],
+                  "stereo_stages_s": {"patchmatch": 150.0, "geometric consistency": 90.0, "depth filter": 4.0}}
+    patchmatch["timings_s"] = {**patchmatch["timings_s"], "stereo depth": 256.0}
+    fast["versus_vortx"] = {"cpu_ratio": 1.74, "extra_peak_rss_bytes": 0, "within_budget": True}
+    report = {"machine": machine_info(), "runs": [], "stereo_runs": [fast], "matcher_runs": [patchmatch],
+              "sparse_vs_dense": [], "projected_memory": {"room_m": [10, 10, 3], "views": 60, "keyframes": 500,
+                                                          "image_size": [640, 480]}}
+    table = markdown(report)
+    assert "| N=60, 2 m room | fast | 64 | 200x150 | - | - | - | 30.0 | 0.47 |" in table
+    assert "| N=60, 2 m room | patchmatch | 64 | 320x240 | 150.0 | 90.0 | 4.0 | 256.0 | 4.00 |" in table
