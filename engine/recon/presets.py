@@ -23,8 +23,8 @@ from .settings import (ReconSettings, cli_flag, field_default, given_settings, r
 # The demo room (samples/demo_room, 36 photos of 320 x 240) posed as `make demo` poses it
 # (`python -m engine poses samples/demo_room/images`), then
 # `python -m engine reconstruct <posed> --quality NAME --out room.ply`: wall seconds on this project's
-# 2-core machine shared with other jobs (2026-12-03, load average 7-12: on an idle machine about a
-# third of that; CPU seconds: Preview 64, Standard 172).
+# 2-core machine shared with other jobs (2026-12-03, load average 7-12), the mean of two runs each:
+# Preview 152 s and 113 s (64 and 75 CPU s), Standard 256 s and 340 s (172 and 215 CPU s).
 DEMO_MACHINE = "the demo room's 36 photos, 2 shared CPU cores"
 
 
@@ -57,11 +57,11 @@ PRESETS: tuple[QualityPreset, ...] = (
         "preview", "Preview",
         {"stereo_matcher": MATCHER_FAST, "stereo_image_size": 160, "stereo_views": 16},
         "Fast matcher, 160 px stereo photos, 16 depth maps: a quick look at the room",
-        demo_seconds=152),
+        demo_seconds=132),
     QualityPreset(
         "standard", "Standard", {},
         "The default settings",
-        demo_seconds=256),
+        demo_seconds=298),
     QualityPreset(
         "high", "High",
         {"stereo_matcher": MATCHER_PATCHMATCH, "stereo_image_size": 320},
