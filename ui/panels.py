@@ -18,11 +18,11 @@ import bpy
 
 from ..engine.poses.scale import SOURCE_FLOOR, SOURCE_FLOOR_AND_CEILING, SOURCE_GUESS
 from ..engine.recon.presets import preset
+from ..engine.recon.settings import BLENDER, setting_fields
 from ..vortx_blender import jobs
 from ..vortx_blender import result as results
 from ..vortx_blender.frame import capture_frame_note
 from ..vortx_blender.jobs import Job
-from ..engine.recon.settings import BLENDER, setting_fields
 from ..vortx_blender.properties import CUSTOM_QUALITY, POSES_BY_SFM, blender_name, recon_property_names
 from ..vortx_blender.texture import bake_summary, headset_budget_text
 from . import sidebar
@@ -99,10 +99,10 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job], width_px: float
     # The coordinates the capture is shown (and the result exported) in: an import option that also
     # moves an imported capture at once. Greyed out when the capture has none of its own (the line
     # under it says so, its tooltip why).
-    split = layout.column()
-    split.use_property_split = True
-    split.use_property_decorate = False
-    row = split.row()
+    column = layout.column()
+    column.use_property_split = True
+    column.use_property_decorate = False
+    row = column.row()
     row.prop(settings, "output_frame", expand=True)
     note = capture_frame_note(settings)
     if note is not None:
@@ -121,7 +121,7 @@ def draw_capture(layout: Any, settings: Any, job: Optional[Job], width_px: float
         status_line(col, poses_line(settings), tooltip=settings.pose_status)
         if settings.posed_frame_count:
             text, guessed = scale_line(settings)
-            tooltip = settings.scale_description + (f". {SET_SCALE_ADVICE}" if guessed else "")
+            tooltip = ". ".join(t for t in (settings.scale_description, SET_SCALE_ADVICE if guessed else "") if t)
             status_line(col, text, "ERROR" if guessed else "NONE", tooltip, warning=guessed)
             if settings.pose_check:  # the given poses look off against the photos: Refine Poses below
                 status_line(col, "Poses look off: Refine Poses", "ERROR", settings.pose_check, warning=True)
