@@ -101,6 +101,9 @@ def argument_parser() -> argparse.ArgumentParser:
     parser.add_argument("--skip-poses", action="store_true", help="never run structure from motion; fail if no frame has a pose")
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's given poses against the photos (Blender's Refine Poses) before reconstructing")
+    parser.add_argument("--keep-poses", action="store_true",
+                        help="use the capture's given poses as they are even when the check against the photos finds them "
+                             "off (by default such poses are refined before reconstructing)")
     parser.add_argument("--vr", action="store_true",
                         help="the VR preset: after Reconstruct, Bake Texture (decimated to --face-budget faces, a "
                              "--texture-size texture from the photos); --export .glb or .obj then carries the texture")
@@ -383,14 +386,17 @@ def run(args: argparse.Namespace, addon: ModuleType, job: CaptureJob, report: Ca
                 detail = f"{settings.pose_status}; the {settings.frame_count - settings.posed_frame_count} frames without a pose are left out"
             else:
                 detail = settings.pose_status
-            if args.refine_poses and not estimated:
-                # Poses SfM just estimated are already bundle-adjusted; given poses are refined here.
+            # Poses SfM just estimated are already bundle-adjusted; given poses are refined here when asked,
+            # or when Import Capture's check found them off (as engine reconstruct does; --keep-poses not).
+            refine = not estimated and (args.refine_poses or (bool(settings.pose_check) and not args.keep_poses))
+            settings.keep_given_poses = bool(args.keep_poses)
+            if refine:
                 run_operator("Refine Poses", bpy.ops.vortx.refine_poses, warnings)
                 detail = f"{settings.pose_status}; refined against the photos"
         finally:
             report.warn(warnings)
             report.poses = {"source": "structure from motion" if estimated else "given",
-                            "refined": bool(args.refine_poses and not estimated), "status": settings.pose_status,
+                            "refined": bool(not estimated and "refined" in settings.pose_status), "status": settings.pose_status,
                             "scale_source": settings.scale_source, "scale_description": settings.scale_description,
                             "scale_relative_sigma": round(float(settings.scale_uncertainty), 4),
                             "pose_check": settings.pose_check,
