@@ -17,7 +17,7 @@ from typing import Optional
 
 import numpy as np
 
-from .trajectory import PathLoop, make_path_loop
+from .path_loop import PathLoop, make_path_loop
 
 WALL_THICKNESS = 0.12
 PATTERNS = ("noise", "voronoi", "brick", "wave", "checker", "marble")

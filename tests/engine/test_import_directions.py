@@ -6,6 +6,8 @@ TYPE_CHECKING), so a lazy import cannot hide a cycle.
   it): stereo never imports recon. Photo resizing lives in engine/capture/images.py for both.
 - The reconstruction dispatch (recon/driver.py) imports the stereo method (recon/stereo_fusion.py),
   never the other way round; what both need (the stage timer, vertex colouring) sits below them.
+- A synthetic room's description (data/room.py) sits below its camera path (data/trajectory.py); the
+  walking loop both need is data/path_loop.py.
 - The network's input/output dataclasses (model/outputs.py, StereoEvidence among them) sit below the
   stereo-evidence features (model/stereo_evidence.py).
 """
@@ -69,6 +71,7 @@ def test_stereo_never_imports_recon():
 @pytest.mark.parametrize("upper, lower", [
     ("engine.recon.driver", "engine.recon.stereo_fusion"),
     ("engine.model.stereo_evidence", "engine.model.outputs"),
+    ("engine.data.trajectory", "engine.data.room"),  # the walking loop both need: data/path_loop.py
 ])
 def test_dependency_goes_one_way(upper, lower):
     assert lower in imported_modules(upper)
