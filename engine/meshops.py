@@ -1,4 +1,6 @@
-"""Mesh clean-up on plain arrays: connected pieces, dropping the small ones, merging duplicate vertices.
+"""Mesh helpers on plain arrays: vertex normals, dropping unused vertices (`compact`), connected
+pieces, dropping the small ones, merging duplicate vertices. Used by the reconstruction (marching
+cubes), the texture bake and its VR mesh alike.
 
 A reconstruction's mesh often carries small floating pieces (a few triangles of noise in free space,
 a fragment seen by one photo). In VR those read as dust in the air and cost draw calls, so the user
@@ -18,6 +20,25 @@ from dataclasses import dataclass
 import numpy as np
 
 from .mesh_io import Mesh
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (V, 3) float32, following the faces' winding."""
+    v = vertices.astype(np.float64)
+    face_normals = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])  # length = 2 * area
+    normals = np.zeros_like(v)
+    for corner in range(3):
+        np.add.at(normals, faces[:, corner], face_normals)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    return (normals / np.where(length > 0, length, 1.0)).astype(np.float32)
+
+
+def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Drop vertices that no face uses and renumber the faces."""
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.ravel()] = True
+    remap = np.cumsum(used) - 1
+    return vertices[used], remap[faces]
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import numpy as np
 
 from engine.geometry.cameras import look_at
 from engine.mesh_io import Mesh
-from engine.recon.mesh import vertex_normals
+from engine.meshops import vertex_normals
 from engine.texture.views import TextureView
 
 Pattern = Callable[[np.ndarray], np.ndarray]  # (N, 3) world points -> (N, 3) sRGB 0..1

@@ -26,9 +26,9 @@ from ..geometry.cameras import camera_to_pixels, scale_intrinsics, world_to_came
 from ..geometry.depth_render import NEAR_PLANE
 from ..jobs import ProgressCallback, report
 from ..mesh_io import Mesh
-from ..meshops import merge_duplicate_vertices, subdivide
-from ..recon.colour import COLOUR_LONG_SIDE, ColourView, colour_vertices, occlusion_depth
-from ..recon.mesh import compact, vertex_normals
+from ..meshops import compact, merge_duplicate_vertices, subdivide, vertex_normals
+from ..photo_sampling import occlusion_depth
+from ..recon.colour import COLOUR_LONG_SIDE, ColourView, colour_vertices
 from ..texture.bake import bake_texture
 from ..texture.options import TextureOptions
 from ..texture.views import TextureView, views_from_capture

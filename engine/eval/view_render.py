@@ -20,7 +20,7 @@ from ..errors import VortxError
 from ..geometry.cameras import world_to_camera
 from ..geometry.depth_render import lattice_samples
 from ..mesh_io import Mesh
-from ..recon.colour import sample_bilinear
+from ..photo_sampling import sample_bilinear
 from ..texture.textured_mesh import TexturedMesh
 
 SURFACE_MAX_EDGE_SAMPLES = 1024  # a triangle 512 pixels across still gets half-pixel sample spacing

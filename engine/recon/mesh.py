@@ -13,6 +13,7 @@ import numpy as np
 from skimage.measure import marching_cubes
 
 from ..mesh_io import Mesh
+from ..meshops import compact, vertex_normals
 from .recon_result import empty_mesh
 
 
@@ -47,25 +48,6 @@ def complete_cubes(valid: np.ndarray) -> np.ndarray:
                 inner &= valid[dx:X - 1 + dx, dy:Y - 1 + dy, dz:Z - 1 + dz]
     cubes[1:, 1:, 1:] = inner
     return cubes
-
-
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals (V, 3) float32, following the faces' winding."""
-    v = vertices.astype(np.float64)
-    face_normals = np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])  # length = 2 * area
-    normals = np.zeros_like(v)
-    for corner in range(3):
-        np.add.at(normals, faces[:, corner], face_normals)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    return (normals / np.where(length > 0, length, 1.0)).astype(np.float32)
-
-
-def compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Drop vertices that no face uses and renumber the faces."""
-    used = np.zeros(len(vertices), dtype=bool)
-    used[faces.ravel()] = True
-    remap = np.cumsum(used) - 1
-    return vertices[used], remap[faces]
 
 
 def extract_mesh(indices: np.ndarray, tsdf: np.ndarray, origin: np.ndarray, voxel_size: float) -> Mesh:

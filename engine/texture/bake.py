@@ -1,7 +1,7 @@
 """The texture bake: every texel's colour from the full-resolution photos that see its surface point.
 
 For each texel (texels.py) and each photo: the occlusion test the vertex colours use
-(`recon.colour.visible_points`, against the mesh's own depth map), then a weight
+(`engine/photo_sampling.py`'s `visible_points`, against the mesh's own depth map), then a weight
 
     w = cos(viewing angle) * (focal px / depth)^2 * sharpness * border ramp,
 
@@ -29,7 +29,8 @@ from ..errors import VortxError
 from ..geometry.cameras import scale_intrinsics
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
-from ..recon.colour import UNSEEN_GREY, occlusion_depth, sample_bilinear, visible_points
+from ..meshops import vertex_normals
+from ..photo_sampling import UNSEEN_GREY, occlusion_depth, sample_bilinear, visible_points
 from .atlas import uv_atlas
 from .exposure import ViewSamples, exposure_gains
 from .options import TextureOptions
@@ -176,8 +177,6 @@ def bake_texture(mesh: Mesh, views: Sequence[TextureView], options: TextureOptio
     if not views:
         raise VortxError("no photos to bake the texture from: the capture needs posed photos")
     if mesh.normals is None:  # meshes from files or other tools; the engine's results carry them
-        from ..recon.mesh import vertex_normals
-
         mesh = Mesh(mesh.vertices, mesh.faces, vertex_normals(mesh.vertices, mesh.faces), mesh.colors, mesh.attributes)
     started, timings = time.perf_counter(), {}
     report(progress, "texture: atlas", 0, 1)

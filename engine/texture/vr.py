@@ -13,9 +13,8 @@ import numpy as np
 
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
-from ..meshops import remove_small_pieces
+from ..meshops import compact, remove_small_pieces, vertex_normals
 from ..native_worker import run_in_child
-from ..recon.mesh import compact, vertex_normals
 from .bake import bake_texture
 from .options import TextureOptions
 from .textured_mesh import TexturedMesh

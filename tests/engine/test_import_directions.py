@@ -6,6 +6,11 @@ TYPE_CHECKING), so a lazy import cannot hide a cycle.
   it): stereo never imports recon. Photo resizing lives in engine/capture/images.py for both.
 - The reconstruction dispatch (recon/driver.py) imports the stereo method (recon/stereo_fusion.py),
   never the other way round; what both need (the stage timer, vertex colouring) sits below them.
+- Vertex colouring (recon/colour.py) and the texture bake (texture/) share the photo lookups
+  (engine/photo_sampling.py) and the mesh helpers (engine/meshops.py), which import neither; texture
+  never imports recon, except its command line (texture/cli.py, an entry point above both). The
+  reconstruction settings (recon/settings.py) read the texture options and presets: settings sits
+  above texture/options.py and texture/presets.py, which import no recon module.
 - A synthetic room's description (data/room.py) sits below its camera path (data/trajectory.py); the
   walking loop both need is data/path_loop.py.
 - The network's input/output dataclasses (model/outputs.py, StereoEvidence among them) sit below the
@@ -76,3 +81,21 @@ def test_stereo_never_imports_recon():
 def test_dependency_goes_one_way(upper, lower):
     assert lower in imported_modules(upper)
     assert upper not in imported_modules(lower), f"{lower} imports {upper}, which imports it: a cycle"
+
+
+def _in(package: str) -> list[str]:
+    return [m for m in MODULES if m == package or m.startswith(package + ".")]
+
+
+@pytest.mark.parametrize("lower", ["engine.photo_sampling", "engine.meshops"])
+def test_photo_sampling_and_mesh_helpers_sit_below_recon_and_texture(lower):
+    above = {i for i in imported_modules(lower) if i.startswith(("engine.recon", "engine.texture"))}
+    assert not above, f"{lower} imports {sorted(above)}: it must stay below recon and texture"
+
+
+def test_texture_never_imports_recon_but_its_command_line():
+    offending = {m: sorted(i for i in imported_modules(m) if i == "engine.recon" or i.startswith("engine.recon."))
+                 for m in _in("engine.texture") if m != "engine.texture.cli"}
+    assert not {m: i for m, i in offending.items() if i}, \
+        "engine/texture must not import engine/recon: what both need lives in engine/photo_sampling.py, engine/meshops.py"
+    assert "engine.texture.options" in imported_modules("engine.recon.settings")  # settings sits above the texture options

@@ -86,7 +86,7 @@ def room(tmp_path_factory) -> tuple[Capture, Mesh, Mesh]:
         frames.append(Frame(path, SIZE[0], SIZE[1], K, pose))
     capture = Capture(folder, "images", frames, metric=True)
 
-    from engine.recon.mesh import vertex_normals
+    from engine.meshops import vertex_normals
 
     grid_v, grid_f, _ = wall_grids(20)
     result = Mesh(grid_v.astype(np.float32), grid_f.astype(np.int32), vertex_normals(grid_v, grid_f))

@@ -7,7 +7,8 @@ import pytest
 
 from engine.mesh_io import Mesh
 from engine.geometry.depth_render import render_depth
-from engine.recon.colour import UNSEEN_GREY, ColourView, colour_vertices
+from engine.photo_sampling import UNSEEN_GREY
+from engine.recon.colour import ColourView, colour_vertices
 from engine.geometry.cameras import look_along as look_pose
 
 K = np.array([[100.0, 0, 50], [0, 100, 50], [0, 0, 1]])  # 100 x 100 image, half-angle 26.6 deg

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from engine.errors import VortxError
-from engine.recon.mesh import vertex_normals
+from engine.meshops import vertex_normals
 from engine.texture.atlas import uv_atlas
 from engine.texture.texels import rasterise_uv
 

@@ -8,7 +8,7 @@ import pytest
 
 from engine.errors import VortxError
 from engine.mesh_io import Mesh
-from engine.recon.mesh import vertex_normals
+from engine.meshops import vertex_normals
 from engine.texture.options import TextureOptions
 from engine.texture.vr import decimate, vr_mesh
 
