@@ -96,6 +96,35 @@ def _source_views(images: Sequence[Tensor], Ks: Sequence[np.ndarray], ref_pose: 
         depths=stacked_depths)
 
 
+@dataclass
+class _KeptPlanes:
+    """A view's planes between stages, on the CPU: depth (HW,), normal (HW, 3), view weights (S, HW)."""
+
+    depth: Tensor
+    normal: Tensor
+    view_weights: Tensor
+    size: tuple[int, int]  # (h, w)
+
+    @staticmethod
+    def of(state: PlaneState, ref: ReferenceWindows) -> "_KeptPlanes":
+        return _KeptPlanes(state.depth.cpu(), state.normal.cpu(), state.view_weights.cpu(), (ref.height, ref.width))
+
+    def restore(self, ref: ReferenceWindows, device: torch.device) -> PlaneState:
+        """A PlaneState to refine further (its costs are filled by the next rescore)."""
+        weights = self.view_weights.to(device)
+        state = PlaneState(self.depth.to(device), self.normal.to(device), torch.zeros_like(weights),
+                           torch.zeros_like(self.depth, device=device), weights)
+        state._rays = ref.rays
+        return state
+
+
+def _plane_map(state: PlaneState, ref: ReferenceWindows, cost: Tensor) -> PlaneMap:
+    h, w = ref.height, ref.width
+    return PlaneMap(state.depth.reshape(h, w).cpu().numpy().astype(np.float32),
+                    state.normal.reshape(h, w, 3).cpu().numpy().astype(np.float32),
+                    cost.clamp(0, MAX_COST).reshape(h, w).cpu().numpy().astype(np.float32))
+
+
 def _fronto_normals(rays: Tensor) -> Tensor:
     return -rays / rays.norm(dim=-1, keepdim=True)
 
@@ -174,42 +203,46 @@ def patchmatch_views(
     `stages` receives the seconds of the photometric and the geometric stage."""
     stages = stages if stages is not None else {}
     started = time.perf_counter()
-    states: list[tuple[PlaneState, ReferenceWindows]] = []
+    # Between the stages each view keeps only its planes and view selection (on the CPU); its windows
+    # (the largest part of a view's state) are rebuilt when it is refined again, so memory stays at one
+    # view's working set plus a few maps per reference.
+    kept: list[_KeptPlanes] = []
+    maps: list[Optional[PlaneMap]] = []
     steps = len(references) * (1 + schedule.geometric_passes)
     for done, r in enumerate(references):
         report(progress, "patchmatch", done, steps)
         img, K = image(r)
         srcs = list(sources_of(r))
-        states.append(photometric_planes(img, K, poses[r], [image(s)[0] for s in srcs], [image(s)[1] for s in srcs],
-                                         [poses[s] for s in srcs], depth_ranges[done], schedule, device,
-                                         None if initial_depths is None else initial_depths[done], cancel))
+        state, ref = photometric_planes(img, K, poses[r], [image(s)[0] for s in srcs], [image(s)[1] for s in srcs],
+                                        [poses[s] for s in srcs], depth_ranges[done], schedule, device,
+                                        None if initial_depths is None else initial_depths[done], cancel)
+        kept.append(_KeptPlanes.of(state, ref))
+        maps.append(_plane_map(state, ref, state.cost) if schedule.geometric_passes == 0 else None)
     stages["patchmatch"] = time.perf_counter() - started
     started = time.perf_counter()
     position = {int(r): i for i, r in enumerate(references)}
     iteration = schedule.coarse_iterations + (schedule.scales - 1) * schedule.fine_iterations
     for p in range(schedule.geometric_passes):
-        depths = [state.depth.reshape(ref.height, ref.width).clone().cpu() for state, ref in states]
+        last = p == schedule.geometric_passes - 1
+        depths = [k.depth.reshape(k.size) for k in kept]  # the previous pass's maps: the result ignores the order of views
         for done, r in enumerate(references):
             report(progress, "patchmatch", len(references) * (1 + p) + done, steps)
-            state, ref = states[done]
+            img, K = image(r)
+            ref = ReferenceWindows(img.to(device), torch.as_tensor(K, dtype=torch.float32, device=device), schedule.window)
+            state = kept[done].restore(ref, device)
             srcs = list(sources_of(r))
+            source_images, source_Ks, source_poses = [image(s)[0] for s in srcs], [image(s)[1] for s in srcs], [poses[s] for s in srcs]
             source_depths = [depths[position[s]] if s in position else None for s in srcs]
-            geometric_refinement(state, ref, poses[r], [image(s)[0] for s in srcs], [image(s)[1] for s in srcs],
-                                 [poses[s] for s in srcs], source_depths, depth_ranges[done], schedule, device,
-                                 iteration, cancel)
+            geometric_refinement(state, ref, poses[r], source_images, source_Ks, source_poses, source_depths,
+                                 depth_ranges[done], schedule, device, iteration, cancel)
+            if last:  # the filter judges the photometric cost alone
+                cost = photometric_cost(state, ref, poses[r], source_images, source_Ks, source_poses, device,
+                                        iteration + schedule.geometric_iterations)
+                maps[done] = _plane_map(state, ref, cost)
+            else:
+                kept[done] = _KeptPlanes.of(state, ref)
         iteration += schedule.geometric_iterations
     report(progress, "patchmatch", steps, steps)
     stages["geometric consistency"] = time.perf_counter() - started
-    maps = []
-    for done, (r, (state, ref)) in enumerate(zip(references, states)):
-        srcs = list(sources_of(r))
-        if schedule.geometric_passes:
-            cost = photometric_cost(state, ref, poses[r], [image(s)[0] for s in srcs], [image(s)[1] for s in srcs],
-                                    [poses[s] for s in srcs], device, iteration)
-        else:
-            cost = state.cost
-        h, w = ref.height, ref.width
-        maps.append(PlaneMap(state.depth.reshape(h, w).cpu().numpy().astype(np.float32),
-                             state.normal.reshape(h, w, 3).cpu().numpy().astype(np.float32),
-                             cost.clamp(0, MAX_COST).reshape(h, w).cpu().numpy().astype(np.float32)))
-    return maps
+    assert all(m is not None for m in maps)
+    return maps  # type: ignore[return-value]

@@ -11,7 +11,7 @@ import torch
 
 from engine.geometry.cameras import look_at
 from engine.stereo.depth_maps import DepthMap, filter_geometric
-from engine.stereo.patchmatch_views import PatchMatchSchedule, photometric_planes, geometric_refinement
+from engine.stereo.patchmatch_views import PatchMatchSchedule, geometric_refinement, patchmatch_views, photometric_planes
 from engine.stereo.plane_cost import MAX_COST, ReferenceWindows, SourceViews, plane_costs
 from engine.stereo.source_views import select_sources_by_triangulation
 
@@ -169,3 +169,20 @@ def test_sources_by_triangulation_prefer_a_twelve_degree_angle() -> None:
     chosen = select_sources_by_triangulation(poses, np.stack([K] * 4), sizes, 0, 2, points)
     assert chosen[0] == 2
     assert 1 not in chosen.tolist(), "a 1 degree baseline triangulates nothing"
+
+
+def test_patchmatch_views_with_a_geometric_pass_give_every_view_its_floor() -> None:
+    images, K, poses = floor_views()
+    references = [1, 2, 3]
+    sources = {1: [0, 2, 3], 2: [1, 3, 4], 3: [1, 2, 4]}  # references 1-3 see each other: the geometric pass has maps
+    stages: dict = {}
+    maps = patchmatch_views(references, lambda r: sources[r], lambda i: (torch.as_tensor(images[i]), K), poses,
+                            [(0.5, 6.0)] * 3, PatchMatchSchedule(),
+                            torch.device("cpu"), stages=stages)
+    assert set(stages) == {"patchmatch", "geometric consistency"}
+    for r, plane in zip(references, maps):
+        depth, normal = true_floor(K, poses[r])
+        good = (np.abs(plane.depth - depth) / depth < 0.01)[interior()]
+        assert good.mean() > 0.85, f"view {r}"
+        assert np.median(plane.cost[interior()]) < 0.1, "the photometric cost of the right planes is low"
+        assert np.allclose(np.linalg.norm(plane.normal, axis=-1), 1.0, atol=1e-4)
