@@ -66,7 +66,8 @@ PRESETS: tuple[QualityPreset, ...] = (
         "high", "High",
         {"stereo_matcher": MATCHER_PATCHMATCH, "stereo_image_size": 320},
         "PatchMatch matcher (slanted planes per pixel), 320 px stereo photos: smoother walls and floors, slower",
-        demo_seconds=None, not_measured="the PatchMatch matcher is still being written"),
+        demo_seconds=None, not_measured="the first run, as PatchMatch was being finished, was stopped after 25 min "
+                                         "on the shared 2 cores"),
 )
 QUALITY_NAMES: tuple[str, ...] = tuple(p.name for p in PRESETS)
 DEFAULT_QUALITY = "standard"
