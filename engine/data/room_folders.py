@@ -8,13 +8,19 @@ Training (engine.train), held-out evaluation and `python -m engine eval` all rea
 """
 
 from __future__ import annotations
+from dataclasses import replace
 
 from pathlib import Path
 from typing import Optional, Sequence
 
 import numpy as np
 
+from ..capture import load_capture, load_depth
+from ..capture.geometry import parse_pose
 from ..errors import VortxError
+from ..geometry.cameras import scale_intrinsics
+from ..tsdf.integration import fuse_ground_truth
+from .scannet_layout import TRUE_POSE_DIR
 
 GT_FILE = "tsdf_gt_04.npz"  # written by precompute_room when the renderer did not write one
 SYNTH_GT_FILE = "tsdf_gt.npz"  # written by `python -m engine synth` (fused from exact float depth)
@@ -52,11 +58,6 @@ def with_true_poses(capture):
     """The room's capture with every frame at the pose it was rendered from: a "real" room
     (`synth --realism real`) gives methods poses with errors in pose/ and keeps the exact ones in
     pose_true/; scoring against the true depth maps must use those. Other rooms come back as they are."""
-    from dataclasses import replace
-
-    from ..capture.geometry import parse_pose
-    from .scannet_layout import TRUE_POSE_DIR
-
     true_dir = Path(capture.root) / TRUE_POSE_DIR
     if not true_dir.is_dir():
         return capture
@@ -80,8 +81,6 @@ class _LazyDepths:
         return len(self.paths)
 
     def __getitem__(self, i):
-        from ..capture import load_depth
-
         return load_depth(self.paths[i])
 
 
@@ -89,10 +88,6 @@ def precompute_room(room: Path, force: bool = False, progress=None) -> Path:
     """The room's ground-truth TSDF file; when it has none (or `force`), fuse it at 4 cm
     (engine.tsdf.fuse_ground_truth: 12 cm truncation, 3 m depth cap, frustum bounds) and save it as
     `tsdf_gt_04.npz` (TsdfVolume format) beside it."""
-    from ..capture import load_capture
-    from ..geometry.cameras import scale_intrinsics
-    from ..tsdf.integration import fuse_ground_truth
-
     out = Path(room) / GT_FILE
     if not force:
         existing = gt_path(room)

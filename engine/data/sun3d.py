@@ -25,6 +25,8 @@ import numpy as np
 
 from ..errors import VortxError
 from ..jobs import ProgressCallback, report
+from ..mesh_io import write_ply
+from ..tsdf.integration import fuse_ground_truth
 from . import scannet_layout as layout
 
 SOURCE_COMMIT = "4b4a3687e5baca3098ab1791b0b30948650a0667"
@@ -65,9 +67,7 @@ def z_up_rotation(poses: np.ndarray) -> np.ndarray:
 
 def convert_sun3d(source: Path, out: Path, progress: Optional[ProgressCallback] = None) -> dict:
     """Write the room folder `out` from the sample folder `source`; returns a summary dict."""
-    from ..mesh_io import write_ply
     from ..recon.mesh import extract_mesh
-    from ..tsdf.integration import fuse_ground_truth
 
     source, out = Path(source), Path(out)
     if out.exists() and any(out.iterdir()):

@@ -34,10 +34,12 @@ from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import write_ply
 from . import scannet_layout as layout
 from ..capture.exif import focal_exif_block
+from ..tsdf import fuse_ground_truth
 from .degrade import DegradationSettings, degrade_photo, frame_rng, perturb_poses, plan_degradations, write_jpeg
 from .geometry import room_parts
 from .render import RenderSettings, RoomRenderer, bpy_version
 from .room import RoomSpec, generate_room
+from .room_folders import SYNTH_GT_FILE
 from .trajectory import scan_trajectory
 
 FORMAT_VERSION = 1
@@ -176,9 +178,6 @@ def synthesize_room(
     layout.write_intrinsics(work, K)
 
     if options.write_tsdf:
-        from ..tsdf import fuse_ground_truth
-        from .room_folders import SYNTH_GT_FILE
-
         depths = _LazyDepths(work, options.frames)
         volume = fuse_ground_truth(depths, K, poses, options.voxel_size, options.trunc, options.depth_cap,
                                    cancel=cancel)

@@ -16,7 +16,7 @@ from pathlib import Path
 from ..errors import VortxError
 from ..mesh_io import read_ply
 from ..tsdf.volume import TsdfVolume
-from .depth_metrics import DEPTH_METRIC_NAMES
+from .depth_metrics import DEPTH_METRIC_NAMES, capture_depth_views, mesh_depth_metrics
 from .mesh_metrics import MeshMetrics, evaluate_mesh
 from .surface_metrics import SURFACE_LEGEND, SurfaceMetrics, evaluate_surface, surface_table
 from .room_box import fit_room_box, room_box_from_tsdf
@@ -66,7 +66,6 @@ def run(args: argparse.Namespace) -> int:
             raise VortxError(f"--depth needs a capture folder with depth maps (a rendered room or ScanNet scene); "
                              f"{source} is not a folder")
         from ..capture import load_capture
-        from .depth_metrics import capture_depth_views
 
         depth_views = capture_depth_views(load_capture(source), every=max(1, args.depth_every))
 
@@ -91,8 +90,6 @@ def run(args: argparse.Namespace) -> int:
     print(surface_table(surface_rows))
     depth_rows = {}
     if depth_views is not None:
-        from .depth_metrics import mesh_depth_metrics
-
         meshes = {args.pred.name: pred} | ({"room box baseline": box} if args.box_baseline else {})
         depth_rows = {name: mesh_depth_metrics(m.vertices, m.faces, depth_views) for name, m in meshes.items()}
         print(f"depth metrics over {len(depth_views)} frames (meshes rendered into each frame)")

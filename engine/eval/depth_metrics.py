@@ -6,6 +6,11 @@ from typing import Iterable
 
 import numpy as np
 
+from ..capture import load_depth
+from ..errors import VortxError
+from ..geometry.depth_render import render_depth
+from ..meshops import subdivide
+
 DEPTH_METRIC_NAMES = ("AbsRel", "AbsDiff", "SqRel", "RMSE", "LogRMSE", "r1", "r2", "r3", "complete")
 
 
@@ -59,9 +64,6 @@ def mesh_depth_metrics(
     views: (K (3, 3) in pixels of the depth map, pose (4, 4) camera-to-world, true depth (H, W)
     metres with 0 = missing). Pixels the mesh does not cover count as missing predictions.
     """
-    from ..meshops import subdivide
-    from ..geometry.depth_render import render_depth
-
     # The rasteriser drops triangles that cross a camera's near plane and caps the samples of huge
     # ones; metre-long triangles (a box room, a ground-truth wall) must be split first.
     vertices, faces = subdivide(vertices, faces, max_edge=0.1)
@@ -75,9 +77,6 @@ def mesh_depth_metrics(
 
 def capture_depth_views(capture, every: int = 1) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """(K, pose, depth) of every `every`-th posed frame with a depth map, K scaled to the depth map."""
-    from ..capture import load_depth
-    from ..errors import VortxError
-
     views = []
     frames = [f for f in capture.frames if f.pose is not None and f.depth_path is not None]
     if not frames:

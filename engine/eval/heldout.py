@@ -17,10 +17,23 @@ import time
 from pathlib import Path
 from typing import Optional, Sequence
 
+import cv2
 import numpy as np
 
+from ..capture import load_capture
 from ..data.room_folders import find_rooms, precompute_room, with_true_poses
 from ..errors import VortxError
+from ..eval.depth_metrics import capture_depth_views, mesh_depth_metrics
+from ..eval.mesh_metrics import evaluate_mesh
+from ..eval.room_box import room_box_from_tsdf
+from ..eval.surface_metrics import evaluate_surface
+from ..geometry.cameras import look_at
+from ..geometry.depth_render import render_depth, shade
+from ..mesh_io import read_ply, write_ply
+from ..meshops import subdivide
+from ..recon import reconstruct
+from ..recon.settings import ReconSettings
+from ..tsdf.volume import TsdfVolume
 from .surface_metrics import SURFACE_KEYS, surface_cells, surface_headings
 
 DEPTH_EVERY = 4  # frames for the depth metrics: every 4th (10 of a rendered room's 40)
@@ -38,16 +51,6 @@ def evaluate_rooms(
 ) -> dict:
     """weights: label -> weights path, or STEREO_METHOD for classical stereo fusion.
     Returns {label: {room: metrics dict}, ...} plus means."""
-    from ..capture import load_capture
-    from ..eval.depth_metrics import capture_depth_views, mesh_depth_metrics
-    from ..eval.mesh_metrics import evaluate_mesh
-    from ..eval.surface_metrics import evaluate_surface
-    from ..eval.room_box import room_box_from_tsdf
-    from ..mesh_io import read_ply, write_ply
-    from ..recon import reconstruct
-    from ..recon.settings import ReconSettings
-    from ..tsdf.volume import TsdfVolume
-
     results: dict = {label: {} for label in weights}
     if box:
         results["room box"] = {}
@@ -124,12 +127,6 @@ def metrics_table(result: dict) -> str:
 def render_side_by_side(meshes: Sequence, labels: Sequence[str], out_path: Path, size=(320, 240),
                         clip_above: Optional[float] = None) -> Path:
     """One elevated view of each mesh (same camera), ceilings clipped, written as one PNG."""
-    import cv2
-
-    from ..geometry.cameras import look_at
-    from ..geometry.depth_render import render_depth, shade
-    from ..meshops import subdivide
-
     ref = np.asarray(meshes[-1].vertices, np.float64)
     lo, hi = ref.min(0), ref.max(0)
     center = (lo + hi) / 2
@@ -191,8 +188,6 @@ def run(args: argparse.Namespace) -> int:
     save_json(result, out / "metrics.json")
     print(metrics_table(result))
     if args.picture:
-        from ..mesh_io import read_ply
-
         room = rooms[0]
         label = next(iter(weights))
         pred = read_ply(out / f"{room.name}_{_slug(label)}.ply")

@@ -17,6 +17,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Optional, Sequence
 
+import cv2
 import numpy as np
 
 from ..capture import Capture
@@ -30,7 +31,10 @@ from ..meshops import compact, merge_duplicate_vertices, subdivide, vertex_norma
 from ..photo_sampling import occlusion_depth
 from ..recon.colour import COLOUR_LONG_SIDE, ColourView, colour_vertices
 from ..texture.bake import bake_texture
+from ..texture.file_parts import encode_png
+from ..texture.ktx2 import decode_ktx2, encode_ktx2
 from ..texture.options import TextureOptions
+from ..texture.presets import gpu_texture_bytes
 from ..texture.views import TextureView, views_from_capture
 from ..texture.vr import textured_result
 from .image_metrics import psnr, ssim
@@ -85,9 +89,6 @@ def heldout_texture_report(mesh: Mesh, capture: Capture, heldout: Sequence[str],
 
     compressed, texture_files = None, {}
     if options.texture_format != "png":  # the headset preset's GPU texture, decoded as a GPU shows it
-        from ..texture.files import encode_png
-        from ..texture.ktx2 import decode_ktx2, encode_ktx2
-        from ..texture.presets import gpu_texture_bytes
 
         mark = time.perf_counter()
         report(progress, f"held-out: {options.texture_format}", 0, 1)
@@ -146,8 +147,6 @@ def colour_views(views: Sequence[TextureView]) -> list[ColourView]:
         image = view.load()
         w, h = view.size
         if max(w, h) > COLOUR_LONG_SIDE:
-            import cv2
-
             size = resized_size(w, h, COLOUR_LONG_SIDE)
             image, K = cv2.resize(image, size, interpolation=cv2.INTER_AREA), scale_intrinsics(view.K, (w, h), size)
         else:
@@ -199,8 +198,6 @@ def orient_toward_cameras(vertices: np.ndarray, faces: np.ndarray, views: Sequen
 def write_comparison_picture(path: Path, photo: np.ndarray, renders: dict[str, np.ndarray]) -> None:
     """One PNG: the photo, then each render (label -> (h, w, 3) uint8 RGB, in the dict's order), side
     by side with 4-pixel white gaps, each labelled in its top-left corner."""
-    import cv2
-
     panels = [("held-out photo", photo), *renders.items()]
     h, w = photo.shape[:2]
     for label, image in panels:

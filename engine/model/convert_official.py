@@ -22,6 +22,8 @@ import torch
 
 from ..errors import WeightsError
 from .config import VortxConfig
+from .vortx import VortxNet
+from .weights import load_state_into, save_weights
 
 PREFIX = "vortx."
 # Official column order [x, y, z, batch] -> ours [batch, x, y, z].
@@ -93,9 +95,6 @@ def official_to_engine(state: dict[str, torch.Tensor], model: torch.nn.Module) -
 
 
 def convert_checkpoint(source: Path, output: Path) -> ConversionReport:
-    from .vortx import VortxNet
-    from .weights import load_state_into, save_weights
-
     config = VortxConfig.official()
     model = VortxNet(config)
     state = official_to_engine(read_official_state_dict(source), model)

@@ -6,6 +6,7 @@ the header has no config (a file written by another tool).
 """
 
 from __future__ import annotations
+import dataclasses
 
 import json
 from pathlib import Path
@@ -97,8 +98,6 @@ def ship_weights(src: Path, dst: Path, half: bool = True, config_changes: dict |
     """Copy trained weights to the shipped location (safetensors + JSON sidecar), optionally with
     floating-point tensors stored as float16 (half the size; they load back into float32) and
     inference-only config fields changed (e.g. {"sparse_norm_statistics": "scene"})."""
-    import dataclasses
-
     config = dataclasses.replace(read_config(src), **(config_changes or {}))
     tensors = {}
     with safe_open(str(src), framework="pt") as f:

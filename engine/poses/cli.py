@@ -13,6 +13,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ..capture import load_capture
+from ..capture.writers import write_colmap_text, write_scannet
 from ..errors import PoseError
 from ..jobs import TqdmProgress
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
@@ -56,9 +58,6 @@ def _known_distance(values: list[str] | None) -> KnownDistance | None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..capture import load_capture
-    from ..capture.writers import write_colmap_text, write_scannet
-
     known_distance = _known_distance(args.known_distance)
     options = SfmOptions(matcher=args.matcher, max_side=args.max_side, intrinsics=args.intrinsics, work_dir=args.work_dir)
     refine_options = RefineOptions(max_side=args.max_side, work_dir=args.work_dir)

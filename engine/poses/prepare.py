@@ -27,10 +27,12 @@ import numpy as np
 from ..capture.model import Capture
 from ..errors import PoseError
 from ..jobs import CancelToken, ProgressCallback
+from . import SfmOptions, estimate_poses
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .align import Similarity
-from .gravity import KnownDistance, align_gravity_and_scale
+from .gravity import KnownDistance, align_gravity_and_scale, rescale_capture
 from .refine import STATUS_NOT_REFINED, STATUS_REFUSED
+from .scale import SOURCE_GUESS, estimate_metric_scale
 
 if TYPE_CHECKING:
     from .quality import PoseCheck
@@ -243,7 +245,6 @@ def _with_sfm(
 ) -> PreparedCapture:
     # From the package at call time: the SfM code loads only when SfM actually runs (and tests can
     # stand in for `engine.poses.estimate_poses`).
-    from . import SfmOptions, estimate_poses
 
     options = replace(sfm_options or SfmOptions(), align=True, camera_height=camera_height, known_distance=known_distance)
     result = estimate_poses(capture, options, progress=progress, cancel=cancel)
@@ -284,8 +285,6 @@ def _with_metric_scale(
     scale; a known distance, a metric capture or an unknown scale stay as they are."""
     if prepared.scale_source != "camera height":
         return prepared
-    from .gravity import rescale_capture
-    from .scale import SOURCE_GUESS, estimate_metric_scale
 
     estimate = estimate_metric_scale(prepared.capture, prepared.points, camera_height, dense=dense, progress=progress,
                                      cancel=cancel)

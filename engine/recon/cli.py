@@ -20,8 +20,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..capture import load_capture
 from ..errors import VortxError
 from ..jobs import TqdmProgress
+from ..mesh_io import write_ply
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import SFM_IF_UNPOSED, PreparedCapture, prepare_capture
 from .output_frame import FRAME_CAPTURE, FRAME_WORLD, frame_record, moved_mesh, world_to_output
@@ -63,8 +65,6 @@ def settings_from_args(args: argparse.Namespace) -> ReconSettings:
 
 def write_mesh(path: Path, mesh: Any) -> None:
     """A PLY with vertex colours and the confidence layer (the textured formats: engine/texture/files.py)."""
-    from ..mesh_io import write_ply
-
     write_ply(path, mesh.vertices, mesh.faces, normals=mesh.normals, colors=mesh.colors, attributes=mesh.attributes)
 
 
@@ -96,7 +96,6 @@ def run(args: argparse.Namespace) -> int:
     refuse_unused_quality(settings, args.quality, given_settings(args))
     refuse_untextured_settings(given_settings(args), out.suffix.lower() != ".ply", "--out room.glb, room.obj or room.usdz")
 
-    from ..capture import load_capture
     from .driver import reconstruct
 
     capture = load_capture(args.capture)

@@ -21,7 +21,7 @@ from ..capture.images import load_resized, resized_size
 from ..geometry.cameras import scale_intrinsics
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
-from ..photo_sampling import DEPTH_LONG_SIDE, UNSEEN_GREY, occlusion_depth, sample_bilinear, visible_points
+from ..photo_sampling import UNSEEN_GREY, occlusion_depth, sample_bilinear, visible_points
 
 if TYPE_CHECKING:
     from .plan import ReconPlan
@@ -60,7 +60,7 @@ def colour_vertices(mesh: Mesh, views: list[ColourView], tolerance: float) -> np
     weight = np.zeros(n, dtype=np.float64)
     for view in views:
         h, w = view.image.shape[:2]
-        # Occlusion is resolved at <= DEPTH_LONG_SIDE pixels: about 2 cm per pixel at 3 m, finer than
+        # Occlusion is resolved at <= DEPTH_LONG_SIDE (photo_sampling) pixels: about 2 cm per pixel at 3 m, finer than
         # the tolerance, at a quarter of the rasterisation cost of a 320-pixel image.
         depth = occlusion_depth(mesh, view.K, view.pose, (w, h))
         ids, u, v, cosine = visible_vertices(mesh, view, depth, tolerance)

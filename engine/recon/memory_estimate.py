@@ -28,6 +28,12 @@ from typing import Any, Optional
 
 import numpy as np
 
+from ..capture.images import resized_size
+from ..geometry.view_selection import select_keyframes
+from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
+from ..poses.prepare import SFM_NEVER, prepare_capture
+from .scene_bounds import scene_bounds
+
 FUSION_BYTES_PER_VOXEL_VIEW = (3500, 2100, 1400)  # coarse, medium, fine (C = 80, 40, 24)
 CNN_BYTES_PER_VOXEL = (3300, 2400, 1600)  # coarse, medium, fine UNet + head, inference
 IMAGE_STRIDES = (16, 8, 4)
@@ -131,12 +137,6 @@ def estimate_capture_memory(capture: Any, settings: Any, texture: bool = False,
     The stereo method is costed as VoRTX: the bench holds its peak within VoRTX's + 1 GiB on the
     same capture (measured +10 MB).
     """
-    from ..geometry.view_selection import select_keyframes
-    from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
-    from ..poses.prepare import SFM_NEVER, prepare_capture
-    from ..capture.images import resized_size
-    from .scene_bounds import scene_bounds
-
     frames = capture.frames
     if not frames:
         raise ValueError(f"{capture.root}: a capture without frames has no memory estimate")

@@ -26,7 +26,8 @@ import numpy as np
 
 from ..colour_space import SRGB_BYTE_TO_LINEAR, linear_to_srgb
 from ..errors import VortxError
-from ..geometry.cameras import scale_intrinsics
+from ..geometry.cameras import camera_to_pixels, scale_intrinsics, world_to_camera
+from ..geometry.depth_render import NEAR_PLANE
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
 from ..meshops import vertex_normals
@@ -106,9 +107,6 @@ def faces_in_view(mesh: Mesh, view: TextureView) -> np.ndarray:
     """(F,) bool: faces that may show in the photo (a corner in front of the camera, and the corners
     not all beyond one side of the image). A cheap cull before the per-texel test: a room photo sees a
     fifth of the room, so four fifths of the texels are skipped without projecting them."""
-    from ..geometry.cameras import camera_to_pixels, world_to_camera
-    from ..geometry.depth_render import NEAR_PLANE
-
     w, h = view.size
     cam = world_to_camera(mesh.vertices, view.pose)
     in_front = cam[:, 2] > NEAR_PLANE

@@ -15,10 +15,14 @@ import json
 import sys
 from pathlib import Path
 
+from ..capture import load_capture
 from ..errors import VortxError
 from ..jobs import TqdmProgress
+from ..mesh_io import read_ply
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
-from .files import TEXTURED_SUFFIXES
+from ..poses.prepare import SFM_NEVER, prepare_capture
+from .files import TEXTURED_SUFFIXES, write_textured
+from .views import views_from_capture
 
 TEXTURE_FLAGS = ("texture_size", "face_budget", "headset")
 LITTLE_SEEN = 0.05  # below this share of the texels seen by a photo, the capture and mesh do not match
@@ -46,13 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..capture import load_capture
-    from ..mesh_io import read_ply
-    from ..poses.prepare import SFM_NEVER, prepare_capture
     from ..recon.settings import ReconSettings
-    from .views import views_from_capture
     from .vr import textured_result
-    from .files import write_textured
 
     if args.out.suffix.lower() not in TEXTURED_SUFFIXES:
         raise VortxError(f"--out {args.out}: a textured result is written as .glb, .obj or .usdz")

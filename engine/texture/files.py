@@ -19,41 +19,27 @@ result is complete: a failed encoder or an interrupted run leaves nothing half-w
 
 from __future__ import annotations
 
-import json
-import os
-import struct
-from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Iterator, Optional
+from typing import Any, Optional
 
-import cv2
 import numpy as np
 
 from ..errors import VortxError
 from ..mesh_io import PathLike, write_obj
+from .draco import draco_primitive
+from .encoders import model_viewer_files
+from .file_parts import encode_png, glb_chunks, staged, z_up_to_y_up
+from .ktx2 import glb_with_ktx2
 from .options import TextureOptions
+from .preview import write_preview
 from .textured_mesh import TexturedMesh
+from .usdz import write_usdz
 
 MATERIAL_NAME = "VoRTX Texture"
-GLB_MAGIC, GLB_VERSION = 0x46546C67, 2
-CHUNK_JSON, CHUNK_BIN = 0x4E4F534A, 0x004E4942
 # glTF constants
 FLOAT, UNSIGNED_INT = 5126, 5125
 ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER = 34962, 34963
 LINEAR, LINEAR_MIPMAP_LINEAR, CLAMP_TO_EDGE = 9729, 9987, 33071
-
-
-def z_up_to_y_up(xyz: np.ndarray) -> np.ndarray:
-    """(N, 3) engine world (Z up) -> glTF (Y up, -Z forward): (x, y, z) -> (x, z, -y)."""
-    xyz = np.asarray(xyz, np.float32)
-    return np.stack([xyz[:, 0], xyz[:, 2], -xyz[:, 1]], axis=1)
-
-
-def encode_png(texture: np.ndarray) -> bytes:
-    ok, data = cv2.imencode(".png", np.ascontiguousarray(texture[..., ::-1]))
-    if not ok:
-        raise VortxError("could not encode the texture as PNG")
-    return data.tobytes()
 
 
 class _Buffer:
@@ -96,8 +82,6 @@ def glb_bytes(mesh: TexturedMesh, name: str = "VoRTX Result", extras: Optional[d
     extensions_used = ["KHR_materials_unlit"]
     primitive: dict[str, Any]
     if geometry == "draco":
-        from .draco import draco_primitive
-
         primitive = draco_primitive(buffer, positions, normals, uvs, custom, np.asarray(mesh.faces, np.uint32), needed_by)
         extensions_used.append("KHR_draco_mesh_compression")
     else:
@@ -131,44 +115,7 @@ def glb_bytes(mesh: TexturedMesh, name: str = "VoRTX Result", extras: Optional[d
         "bufferViews": buffer.views,
         "buffers": [{"byteLength": len(buffer.data)}],
     }
-    return _glb_chunks(document, bytes(buffer.data))
-
-
-def _glb_chunks(document: dict[str, Any], binary: bytes) -> bytes:
-    text = json.dumps(document, separators=(",", ":")).encode()
-    text += b" " * (-len(text) % 4)
-    binary = binary + b"\0" * (-len(binary) % 4)
-    total = 12 + 8 + len(text) + 8 + len(binary)
-    return (struct.pack("<III", GLB_MAGIC, GLB_VERSION, total) + struct.pack("<II", len(text), CHUNK_JSON) + text
-            + struct.pack("<II", len(binary), CHUNK_BIN) + binary)
-
-
-def unpack_glb(data: bytes) -> tuple[dict[str, Any], bytes]:
-    """(the glTF JSON, the binary chunk) of GLB bytes."""
-    magic, version, length = struct.unpack_from("<III", data, 0)
-    if magic != GLB_MAGIC or version != GLB_VERSION or length != len(data):
-        raise VortxError("not a glTF 2.0 binary (GLB) file, or a truncated one")
-    json_length, json_type = struct.unpack_from("<II", data, 12)
-    document = json.loads(data[20:20 + json_length])
-    offset = 20 + json_length
-    if offset >= len(data):
-        return document, b""
-    bin_length, bin_type = struct.unpack_from("<II", data, offset)
-    if bin_type != CHUNK_BIN:
-        raise VortxError("the GLB's second chunk is not its binary buffer")
-    return document, data[offset + 8:offset + 8 + bin_length]
-
-
-def pack_glb(document: dict[str, Any], views: list[bytes]) -> bytes:
-    """GLB bytes of `document` with its buffer views' contents `views` laid out again in order (4-byte
-    aligned) in the one binary buffer."""
-    data = bytearray()
-    for entry, payload in zip(document["bufferViews"], views):
-        data += b"\0" * (-len(data) % 4)
-        entry["buffer"], entry["byteOffset"], entry["byteLength"] = 0, len(data), len(payload)
-        data += payload
-    document["buffers"] = [{"byteLength": len(data)}]
-    return _glb_chunks(document, bytes(data))
+    return glb_chunks(document, bytes(buffer.data))
 
 
 def textured_glb_bytes(mesh: TexturedMesh, options: Optional[TextureOptions] = None, name: str = "VoRTX Result",
@@ -178,8 +125,6 @@ def textured_glb_bytes(mesh: TexturedMesh, options: Optional[TextureOptions] = N
     needed_by = f"the '{options.preset}' headset preset"
     data = glb_bytes(mesh, name, extras, geometry=options.geometry, needed_by=needed_by)
     if options.texture_format != "png":
-        from .ktx2 import glb_with_ktx2
-
         data = glb_with_ktx2(data, options.texture_format, needed_by)
     return data
 
@@ -191,31 +136,6 @@ def write_glb(path: PathLike, mesh: TexturedMesh, name: str = "VoRTX Result",
     with staged([path]) as (temporary,):
         temporary.write_bytes(data)
     return path
-
-
-@contextmanager
-def staged(paths: list[Path]) -> Iterator[list[Path]]:
-    """Temporary paths beside `paths` to write into; renamed onto them only when the block finishes,
-    removed when it fails (nothing half-written is left)."""
-    paths = [Path(p) for p in paths]
-    for path in paths:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = [p.with_name(f".{p.name}.{os.getpid()}.partial") for p in paths]
-    try:
-        yield temporary
-        for source, target in zip(temporary, paths):
-            if not source.exists():
-                raise VortxError(f"{target.name} was not written")
-        for source, target in zip(temporary, paths):
-            os.replace(source, target)
-    finally:
-        for source in temporary:
-            if source.is_dir():
-                import shutil
-
-                shutil.rmtree(source, ignore_errors=True)
-            else:
-                source.unlink(missing_ok=True)
 
 
 def write_textured_obj(path: PathLike, mesh: TexturedMesh) -> list[Path]:
@@ -244,19 +164,13 @@ def write_textured(path: PathLike, mesh: TexturedMesh, extras: Optional[dict[str
     suffix = path.suffix.lower()
     if suffix == ".glb":
         if preview:  # what the page needs is checked before anything is written
-            from .encoders import model_viewer_files
-
             model_viewer_files(f"the preview page of {path.name} (--preview)")
         written = [write_glb(path, mesh, extras=extras, options=options)]
         if preview:
-            from .preview import write_preview
-
             written += write_preview(path)
         return written
     if suffix == ".obj":
         return write_textured_obj(path, mesh)
     if suffix == ".usdz":
-        from .usdz import write_usdz
-
         return [write_usdz(path, mesh, needed_by=f"--out {path.name}")]
     raise VortxError(f"{path.name}: a textured result is written as .glb, .obj or .usdz")

@@ -23,6 +23,7 @@ import numpy as np
 
 from ..errors import VortxError
 from .encoders import basisu_path
+from .file_parts import encode_png, pack_glb, unpack_glb
 
 EXTENSION = "KHR_texture_basisu"
 MIME = "image/ktx2"
@@ -95,8 +96,6 @@ def is_uastc(data: bytes) -> bool:
 
 def glb_with_ktx2(data: bytes, mode: str, needed_by: str = "a KTX2 texture") -> bytes:
     """A GLB whose PNG / JPEG textures are KTX2 (KHR_texture_basisu), each with a quarter-size PNG fallback."""
-    from .files import encode_png, pack_glb, unpack_glb
-
     document, binary = unpack_glb(data)
     views = [bytes(binary[v.get("byteOffset", 0):v.get("byteOffset", 0) + v["byteLength"]])
              for v in document.get("bufferViews", [])]

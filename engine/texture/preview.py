@@ -20,7 +20,7 @@ import shutil
 from pathlib import Path
 
 from .encoders import model_viewer_files
-from .files import staged, unpack_glb
+from .file_parts import staged, unpack_glb
 
 VIEWER_FOLDER = "vortx-viewer"
 DECODER_FILES = {"draco": ("draco_wasm_wrapper.js", "draco_decoder.wasm", "draco_decoder.js"),

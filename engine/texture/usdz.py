@@ -18,7 +18,7 @@ import numpy as np
 from ..errors import VortxError
 from ..mesh_io import PathLike
 from .encoders import import_usd
-from .files import encode_png, staged, z_up_to_y_up
+from .file_parts import encode_png, staged, z_up_to_y_up
 from .textured_mesh import TexturedMesh
 
 ROOT, MESH, MATERIAL = "/VoRTX", "/VoRTX/Room", "/VoRTX/Materials/Texture"

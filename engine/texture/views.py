@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 
 from ..capture import Capture, Frame
+from ..capture.images import load_resized
 from ..errors import VortxError
 
 SHARPNESS_LONG_SIDE = 640  # photos are compared for blur at one size, whatever their resolution
@@ -32,8 +33,6 @@ class TextureView:
 
 def _loader(frame: Frame) -> Callable[[], np.ndarray]:
     def load() -> np.ndarray:
-        from ..capture.images import load_resized
-
         return load_resized(frame, (frame.width, frame.height))
 
     return load

@@ -11,7 +11,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
+import time
+
+from ..errors import VortxError
+from .config import load_config
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,8 +29,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..errors import VortxError
-    from .config import load_config
     from ..data.room_folders import find_rooms, gt_path, precompute_room
     from .loop import CHECKPOINT, Trainer
 
@@ -33,7 +36,6 @@ def run(args: argparse.Namespace) -> int:
     rooms = find_rooms([cfg.resolve(r) for r in cfg.rooms])
     if not rooms:
         raise VortxError(f"no rooms found in {cfg.rooms}; render some with `python -m engine synth --rooms N --out DIR`")
-    import os
 
     if int(os.environ.get("RANK", "0")) == 0:
         for i, room in enumerate(rooms):
@@ -49,7 +51,6 @@ def run(args: argparse.Namespace) -> int:
     if args.resume:
         trainer.load_checkpoint(trainer.out / CHECKPOINT)
         print(f"resumed at step {trainer.step}", flush=True)
-    import time
 
     start = time.time()
     records = trainer.run(until=args.steps)

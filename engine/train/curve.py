@@ -9,11 +9,14 @@ curve must rise above (an evidence network starts exactly there). `curve_table` 
 """
 
 from __future__ import annotations
+import argparse
 
 import json
 from pathlib import Path
 from typing import Optional
 
+import cv2
+import numpy as np
 from torch import nn
 
 from ..data.room_folders import find_rooms
@@ -88,9 +91,6 @@ PLOT_KEYS = (("fscore", "F-score"), ("normal_agreement", "normal agreement"), ("
 def plot_curve(lines: list[dict], path: Path, size: tuple[int, int] = (360, 240)) -> Path:
     """A PNG with one panel per PLOT_KEYS metric: the learned method's curve over the steps (blue) and the
     classical stereo method at step 0 as a flat line (red), each panel scaled to its own range."""
-    import cv2
-    import numpy as np
-
     width, height = size
     learned = sorted((l for l in lines if l["method"] == LEARNED), key=lambda l: l["step"])
     classical = next((l for l in lines if l["method"] == CLASSICAL), None)
@@ -132,8 +132,6 @@ def plot_curve(lines: list[dict], path: Path, size: tuple[int, int] = (360, 240)
 
 def main(argv: Optional[list[str]] = None) -> int:
     """`python -m engine.train.curve RUN_DIR [--png PATH]`: the run's curve as a Markdown table (and a plot)."""
-    import argparse
-
     parser = argparse.ArgumentParser(prog="python -m engine.train.curve", description=main.__doc__)
     parser.add_argument("run", type=Path, help="the training run's out_dir (holds curve.jsonl)")
     parser.add_argument("--png", type=Path, default=None, help="also plot F, normal agreement and floaters here")

@@ -20,19 +20,27 @@ import math
 import os
 import random
 import time
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
+import dataclasses
 from pathlib import Path
 from typing import Callable, Optional
 
 import numpy as np
+from safetensors.torch import load_file
 import torch
 import torch.nn.functional as F
 from torch import nn
+import torch.distributed as tdist
+from torch.nn.parallel import DistributedDataParallel as DDP
 
 from ..errors import VortxError
 from . import losses as L
 from .config import PhaseConfig, TrainConfig
 from ..data.room_folders import find_rooms
+from ..model.config import LEVEL_NAMES, VortxConfig
+from ..model.outputs import VortxBatch
+from ..model.vortx import VortxNet
+from ..model.weights import load_state_into, read_config, save_weights
 from .batching import CropDataset, RoomSampler, TrainBatch
 from .crops import CropSettings
 from .curve import CURVE_FILE, curve_due, has_point, score_point
@@ -46,9 +54,6 @@ CHECKPOINT = "checkpoint.pt"
 
 
 def build_model(cfg: TrainConfig, pretrained: bool = True):
-    from ..model.config import VortxConfig
-    from ..model.vortx import VortxNet
-
     # The weights remember their training resolution so reconstruction feeds photos at that size.
     mcfg = VortxConfig.from_dict({"image_long_side": max(cfg.image_size), **cfg.model})
     net = VortxNet(mcfg, pretrained_backbone=pretrained and not cfg.init_weights)
@@ -59,12 +64,6 @@ def build_model(cfg: TrainConfig, pretrained: bool = True):
 
 def start_from_weights(net: nn.Module, path: Path) -> None:
     """Load `path` (safetensors) into `net`; its sidecar config must describe the same network."""
-    from dataclasses import asdict
-
-    from safetensors.torch import load_file
-
-    from ..model.weights import load_state_into, read_config
-
     if not Path(path).is_file():
         raise VortxError(f"init_weights: {path} does not exist; give the weights.safetensors of an earlier run")
     theirs, ours = asdict(read_config(path)), asdict(net.config)
@@ -78,8 +77,6 @@ def start_from_weights(net: nn.Module, path: Path) -> None:
 
 def set_pooling(net: nn.Module, use_proj_occ: bool) -> None:
     """Switch view pooling: softmax-with-null (True) or masked mean (False)."""
-    import dataclasses
-
     if hasattr(net, "set_use_proj_occ"):
         net.set_use_proj_occ(use_proj_occ)
         return
@@ -104,9 +101,6 @@ class TrainingModule(nn.Module):
         self.last_stats: dict[str, float] = {}
 
     def forward(self, batch: TrainBatch) -> dict[str, torch.Tensor]:
-        from ..model.config import LEVEL_NAMES
-        from ..model.outputs import VortxBatch
-
         vb = VortxBatch(images=batch.images, K=batch.K, cam_to_world=batch.poses, origin=batch.origin,
                         crop_shape=batch.crop_size, stereo=batch.stereo, stereo_views=batch.stereo_views)
         preds = self.net(vb)
@@ -223,7 +217,6 @@ def init_distributed(device_kind: str) -> Dist:
     """torch.distributed when WORLD_SIZE is set (torchrun), else a single process."""
     if "WORLD_SIZE" not in os.environ:
         return Dist()
-    import torch.distributed as tdist
 
     world = int(os.environ["WORLD_SIZE"])
     rank = int(os.environ.get("RANK", 0))
@@ -337,8 +330,6 @@ class Trainer:
         self.optimizer = make_optimizer(params, phase)
         self.phase_no = phase_no
         if self.dist.enabled:
-            from torch.nn.parallel import DistributedDataParallel as DDP
-
             ids = [self.device.index] if self.device.type == "cuda" else None
             self.ddp = DDP(self.module, device_ids=ids, find_unused_parameters=True)
         else:
@@ -442,7 +433,6 @@ class Trainer:
         ones still training wait forever for the others' gradients)."""
         if not self.dist.enabled:
             return flag
-        import torch.distributed as tdist
 
         value = torch.tensor([1.0 if flag else 0.0], device=self.device)
         tdist.all_reduce(value, op=tdist.ReduceOp.MAX)
@@ -452,8 +442,6 @@ class Trainer:
     def state_dict(self) -> dict:
         rng = rng_state(self.data_rng)
         if self.dist.enabled:
-            import torch.distributed as tdist
-
             all_rng = [None] * self.dist.world_size
             tdist.all_gather_object(all_rng, rng)
             all_samplers = [None] * self.dist.world_size
@@ -503,8 +491,6 @@ class Trainer:
     def export_weights(self, path: Path) -> Path:
         """Save the trained network as safetensors + JSON config for `reconstruct` (inference uses
         softmax-with-null pooling when the model was trained with it)."""
-        from ..model.weights import save_weights
-
         final_phase = self.cfg.phase2 if self.cfg.phase2.steps > 0 else self.cfg.phase1
         set_pooling(self.net, final_phase.use_proj_occ)
         self.net.eval()

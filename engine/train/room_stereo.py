@@ -9,6 +9,7 @@ that made it; a later run with the same options reads the file instead of sweepi
 """
 
 from __future__ import annotations
+import argparse
 
 import json
 from dataclasses import asdict, dataclass
@@ -18,6 +19,7 @@ from typing import Optional
 import numpy as np
 
 from ..errors import VortxError
+from ..stereo import estimate_depth_maps
 
 STEREO_FILE = "stereo_depth.npz"
 FORMAT_VERSION = 2
@@ -76,7 +78,6 @@ def load_or_compute_room_stereo(room: Path, options=None, frames=None, log: Opti
     and cached. frames: the room's frames when the caller has loaded them (`room_frames`)."""
     from ..recon.settings import ReconSettings
     from ..recon.scene_bounds import scene_bounds
-    from ..stereo import estimate_depth_maps
 
     room = Path(room)
     options = options or default_stereo_options()
@@ -116,8 +117,6 @@ def load_or_compute_room_stereo(room: Path, options=None, frames=None, log: Opti
 
 def main(argv: Optional[list[str]] = None) -> int:
     """`python -m engine.train.room_stereo ROOMS_DIR...`: fill the stereo caches (e.g. in parallel)."""
-    import argparse
-
     from ..data.room_folders import find_rooms
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -12,13 +12,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
 
+import cv2
 import numpy as np
 
+from ..capture import load_capture, load_depth, load_image
 from ..data.room_folders import gt_path
 from ..errors import VortxError
 from ..geometry.cameras import scale_intrinsics
 from ..geometry.view_selection import select_keyframes
 from ..tsdf.targets import SEEN_LIMIT
+from ..tsdf.volume import TsdfVolume
 from .room_stereo import RoomStereo, load_or_compute_room_stereo
 
 
@@ -62,15 +65,10 @@ class RoomData:
 def load_room(room: Path, image_size: tuple[int, int], stereo: bool = False) -> RoomData:
     """Load a rendered room at training resolution `image_size` = (W, H); with `stereo`, also its
     stereo depth maps (computed and cached on first use)."""
-    import cv2
-
-    from ..capture import load_capture, load_depth, load_image
-
     room = Path(room)
     gt = gt_path(room)
     if gt is None:
         raise VortxError(f"room {room} has no ground-truth TSDF; run `python -m engine train CONFIG --precompute-only` first")
-    from ..tsdf.volume import TsdfVolume
 
     volume = TsdfVolume.load(gt)
     capture = load_capture(room)
