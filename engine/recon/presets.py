@@ -38,12 +38,13 @@ class QualityPreset:
     not_measured: str = ""  # why demo_seconds is None
 
     def time_text(self) -> str:
-        """The measured time as people read it: "50 s", "3.2 min", or "not measured yet"."""
+        """The measured time as people read it: "50 s", "3.2 min", "15 min", or "not measured yet"."""
         if self.demo_seconds is None:
             return "not measured yet"
         if self.demo_seconds < 90:
             return f"{self.demo_seconds:.0f} s"
-        return f"{self.demo_seconds / 60:.1f} min"
+        minutes = self.demo_seconds / 60
+        return f"{minutes:.1f} min" if minutes < 10 else f"{minutes:.0f} min"
 
     def description(self) -> str:
         """One sentence: what it does and its measured time (the CLI help and Blender's tooltip)."""

@@ -98,3 +98,8 @@ def test_a_preset_the_method_does_not_read_is_refused(capsys) -> None:
     # Standard sets nothing of its own: fine with any method.
     args, settings = _reconstruct(["--method", "vortx", "--weights", "random", "--quality", "standard"])
     cli.refuse_unused_quality(settings, args.quality, cli.given_settings(args))
+
+
+def test_times_read_as_people_say_them() -> None:
+    times = {seconds: replace(PRESETS[0], demo_seconds=seconds).time_text() for seconds in (50, 132, 898)}
+    assert times == {50: "50 s", 132: "2.2 min", 898: "15 min"}
