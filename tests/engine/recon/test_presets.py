@@ -1,5 +1,5 @@
 """Quality presets (engine/recon/presets.py): the same names and values from `engine reconstruct
---quality`, the batch's --quality and Blender's Quality (tests/vortx_blender/test_quality.py); explicit
+--quality`, the batch's --quality and Blender's Quality (tests/vortx_blender/test_quality_menu.py); explicit
 flags win over a preset; a preset a method would not read is refused, never ignored."""
 
 from __future__ import annotations
