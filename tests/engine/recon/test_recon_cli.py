@@ -65,3 +65,29 @@ def test_a_crashing_atlas_fails_the_textured_result_and_keeps_the_ply(capture_wi
     assert f"(the untextured mesh is in {glb.with_suffix('.ply')})" in err
     shutil.rmtree(re.search(r"kept in (\S+) for a bug report", err)[1])
     assert not glb.exists() and len(read_ply(glb.with_suffix(".ply")).faces) > 0  # this process lived on to say so
+
+
+def test_refine_and_keep_poses_together_are_refused_before_anything_runs(tmp_path, capsys):
+    code = main(["reconstruct", str(tmp_path / "no-such-capture"), "--out", str(tmp_path / "room.ply"),
+                 "--refine-poses", "--keep-poses", "--quiet"])
+    assert code != 0
+    err = capsys.readouterr().err
+    assert "--refine-poses and --keep-poses contradict each other" in err
+    assert not (tmp_path / "room.ply").exists()
+
+
+def test_poses_found_off_are_refined_unless_keep_poses(capture_with_a_corrupt_photo, tmp_path, monkeypatch):
+    import engine.poses.prepare as prepare
+
+    seen = []
+    real_prepare = prepare.prepare_capture
+
+    def recording_prepare(capture, *args, **kwargs):
+        seen.append(kwargs.get("refine_when_off"))
+        return real_prepare(capture, *args, **{**kwargs, "check_poses": False})  # no COLMAP here: only the wiring
+
+    monkeypatch.setattr("engine.recon.cli.prepare_capture", recording_prepare)
+    folder, _ = capture_with_a_corrupt_photo
+    assert main(["reconstruct", str(folder), "--out", str(tmp_path / "a.ply"), *TINY]) == 0
+    assert main(["reconstruct", str(folder), "--out", str(tmp_path / "b.ply"), *TINY, "--keep-poses"]) == 0
+    assert seen == [True, False]
