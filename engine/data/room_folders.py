@@ -8,8 +8,8 @@ Training (engine.train), held-out evaluation and `python -m engine eval` all rea
 """
 
 from __future__ import annotations
-from dataclasses import replace
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional, Sequence
 

@@ -6,8 +6,8 @@ the header has no config (a file written by another tool).
 """
 
 from __future__ import annotations
-import dataclasses
 
+import dataclasses
 import json
 from pathlib import Path
 

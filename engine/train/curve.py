@@ -9,8 +9,8 @@ curve must rise above (an evidence network starts exactly there). `curve_table` 
 """
 
 from __future__ import annotations
-import argparse
 
+import argparse
 import json
 from pathlib import Path
 from typing import Optional

@@ -20,8 +20,8 @@ import math
 import os
 import random
 import time
-from dataclasses import asdict, dataclass
 import dataclasses
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Optional
 
@@ -370,7 +370,7 @@ class Trainer:
         start = time.time()
         bar = None
         if self.show_progress:
-            from tqdm import tqdm
+            from tqdm import tqdm  # tqdm: only the command line's progress bar
 
             bar = tqdm(total=until, initial=self.step, desc=self.cfg.name, dynamic_ncols=True)
         log = None

@@ -9,8 +9,8 @@ that made it; a later run with the same options reads the file instead of sweepi
 """
 
 from __future__ import annotations
-import argparse
 
+import argparse
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -51,7 +51,7 @@ def stereo_cache_path(room: Path) -> Path:
 
 def default_stereo_options():
     """The stereo options of a default CPU reconstruction (engine.recon.ReconSettings())."""
-    import torch
+    import torch  # torch: heavy, only when this runs
 
     from ..recon.settings import ReconSettings
     from ..recon.stereo_fusion import stereo_options
