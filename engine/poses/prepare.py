@@ -27,7 +27,6 @@ import numpy as np
 from ..capture.model import Capture
 from ..errors import PoseError
 from ..jobs import CancelToken, ProgressCallback
-from . import SfmOptions, estimate_poses
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .align import Similarity
 from .gravity import KnownDistance, align_gravity_and_scale, rescale_capture
@@ -243,8 +242,8 @@ def _with_sfm(
     progress: Optional[ProgressCallback],
     cancel: Optional[CancelToken],
 ) -> PreparedCapture:
-    # From the package at call time: the SfM code loads only when SfM actually runs (and tests can
-    # stand in for `engine.poses.estimate_poses`).
+    # From the package at call time, not the top: tests stand in for `engine.poses.estimate_poses`.
+    from . import SfmOptions, estimate_poses
 
     options = replace(sfm_options or SfmOptions(), align=True, camera_height=camera_height, known_distance=known_distance)
     result = estimate_poses(capture, options, progress=progress, cancel=cancel)

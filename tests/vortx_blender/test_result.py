@@ -5,7 +5,6 @@ colour is checked in a Workbench render, as an artist would see it in the viewpo
 
 from __future__ import annotations
 
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -174,7 +173,7 @@ def test_result_panel_offers_the_toggle_for_the_shown_result(blender, empty_scen
     assert results.shown_result(empty_scene, None) == obj
     assert "vortx_show_observation" in bpy.types.Object.bl_rna.properties
     calls: list = []
-    blender.ui.panels.draw_result_settings(Recorder(calls), SimpleNamespace(), results.shown_result(empty_scene, None))
+    blender.ui.panels.draw_result_settings(Recorder(calls), empty_scene.vortx, results.shown_result(empty_scene, None))
     props = [c for c in calls if c[0] == "prop" and c[1] and c[1][0] == obj]
     labels = [c for c in calls if c[0] == "label" and "observation" in c[2].get("text", "")]
     assert (len(props), len(labels)) == ((1, 0) if evidence else (0, 1))

@@ -219,7 +219,7 @@ def test_export_keeps_the_selection_and_refuses_unknown_formats(blender, exporte
     bpy.context.view_layer.objects.active = other
     blender.vortx_blender.export.export_result(obj, tmp_path / "room.ply")
     assert other.select_get() and not obj.select_get() and bpy.context.view_layer.objects.active == other
-    with pytest.raises(blender.engine.errors.VortxError, match="use a .glb, .gltf, .ply or .obj"):
+    with pytest.raises(blender.engine.errors.VortxError, match=r"use a .glb, .gltf, .ply, .obj or .usdz file name"):
         blender.vortx_blender.export.export_result(obj, tmp_path / "room.fbx")
 
 

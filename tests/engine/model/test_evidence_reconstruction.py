@@ -34,7 +34,7 @@ def capture(tmp_path_factory):
     return load_capture(path)
 
 
-def exact_depth_maps(capture, plan, options, progress=None, cancel=None):
+def exact_depth_maps(capture, plan, options, progress=None, cancel=None, stages=None):
     maps = []
     for k, frame in enumerate(plan.keyframes[::2]):
         _, depth = render_box_room(frame.K, frame.pose, (frame.width, frame.height), np.asarray(ROOM))

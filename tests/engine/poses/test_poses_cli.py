@@ -143,11 +143,17 @@ def test_reconstruct_refine_poses_uses_and_reports_the_refined_poses(perturbed_c
     err = capsys.readouterr().err
     assert "Pose refinement" in err and "refused: " in err and "keep their given pose" in err
 
-    # Without the flag nothing is refined.
+    # Without the flag the check against the photos finds these poses off (a degree or two), so they are
+    # refined all the same; --keep-poses keeps them as given.
     calls.clear()
     with pytest.raises(Stop):
         main(["reconstruct", str(folder), "--out", str(tmp_path / "mesh.ply"), "--quiet"])
+    assert len(calls) == 1
+    calls.clear()
+    with pytest.raises(Stop):
+        main(["reconstruct", str(folder), "--keep-poses", "--out", str(tmp_path / "mesh.ply"), "--quiet"])
     assert not calls
+    assert "look off" in capsys.readouterr().err  # kept as given: the warning instead
 
 
 def test_reconstruct_sidecar_records_the_refinement(tmp_path, monkeypatch):
