@@ -179,6 +179,8 @@ def quality_hint(settings: Any) -> Optional[str]:
 
 def draw_reconstruction(layout: Any, settings: Any, job: Optional[Job]) -> None:
     layout.operator("vortx.reconstruct", icon="MOD_REMESH")
+    if settings.pose_check:  # Reconstruct refines poses that look off first, unless this is on (its tooltip says so)
+        layout.prop(settings, "keep_given_poses")
     if job is not None and job.title in RECONSTRUCTION_JOBS:
         progress_bar(layout, job)
     _settings_layout(layout)

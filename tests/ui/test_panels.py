@@ -146,8 +146,13 @@ def test_capture_panel_warns_in_one_line_when_the_poses_look_off(blender, empty_
     assert _line(calls, "Scale")["text"] == "Scale: metric, +-6 %, floor and ceiling"
     off = _line(calls, "Poses look off")
     assert (off["text"], off["icon"], off["tooltip"]) == ("Poses look off: Refine Poses", "ERROR", settings.pose_check)
+    # Reconstruct would refine them first: the switch that keeps them as given sits under its button.
+    reconstruction = _draw("VORTX_PT_reconstruction", bpy.context)
+    assert "keep_given_poses" in [bound.get("property") for name, bound in reconstruction if name == "prop"]
     settings.pose_check = ""
     assert not any("look off" in line["text"] for line in _lines(_draw("VORTX_PT_capture", bpy.context)))
+    reconstruction = _draw("VORTX_PT_reconstruction", bpy.context)
+    assert "keep_given_poses" not in [bound.get("property") for name, bound in reconstruction if name == "prop"]
 
 
 def test_explain_shows_its_text_as_the_tooltip_and_reports_it(blender, empty_scene, capsys) -> None:
