@@ -61,6 +61,7 @@ from _extension_dev import ExtensionLoadError, enable, find_extension, mount_che
 # torch), the one source the CLI and the Blender properties share.
 sys.path.insert(1, str(Path(__file__).resolve().parent.parent))
 from engine.poses.camera_height import DEFAULT_CAMERA_HEIGHT_M  # noqa: E402
+from engine.poses.prepare import KEEP_POSES_HELP  # noqa: E402
 from engine.recon.presets import (add_quality_argument, quality_of, refuse_unused_quality,  # noqa: E402
                                   settings_from_quality_arguments)
 from engine.recon.settings import (ReconSettings, add_setting_arguments, given_settings,  # noqa: E402
@@ -101,9 +102,7 @@ def argument_parser() -> argparse.ArgumentParser:
     parser.add_argument("--skip-poses", action="store_true", help="never run structure from motion; fail if no frame has a pose")
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's given poses against the photos (Blender's Refine Poses) before reconstructing")
-    parser.add_argument("--keep-poses", action="store_true",
-                        help="use the capture's given poses as they are even when the check against the photos finds them "
-                             "off (by default such poses are refined before reconstructing)")
+    parser.add_argument("--keep-poses", action="store_true", help=KEEP_POSES_HELP)
     parser.add_argument("--vr", action="store_true",
                         help="the VR preset: after Reconstruct, Bake Texture (decimated to --face-budget faces, a "
                              "--texture-size texture from the photos); --export .glb or .obj then carries the texture")

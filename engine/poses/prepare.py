@@ -255,6 +255,9 @@ def _with_sfm(
 
 
 KEEP_POSES_HINT = "--keep-poses, or Keep Given Poses in Blender, uses them as given"
+# The --keep-poses flag of `engine reconstruct` and the batch.
+KEEP_POSES_HELP = ("use the capture's own poses as given, even when the check against the photos finds them off "
+                   "(by default such poses are refined before stereo, and the report says what moved)")
 
 
 def _check_given_poses(capture: Capture, progress: Optional[ProgressCallback], cancel: Optional[CancelToken]

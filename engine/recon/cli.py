@@ -25,7 +25,7 @@ from ..errors import VortxError
 from ..jobs import TqdmProgress
 from ..mesh_io import write_ply
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
-from ..poses.prepare import SFM_IF_UNPOSED, PreparedCapture, prepare_capture
+from ..poses.prepare import KEEP_POSES_HELP, SFM_IF_UNPOSED, PreparedCapture, prepare_capture
 from .output_frame import FRAME_CAPTURE, FRAME_WORLD, frame_record, moved_mesh, world_to_output
 from .presets import add_quality_argument, quality_of, refuse_unused_quality, settings_from_quality_arguments
 from .settings import (ReconSettings, add_setting_arguments, given_settings, refuse_ignored_settings,
@@ -49,9 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's own poses against the photos before reconstructing (for slightly-off "
                              "tracker, ARKit or SLAM poses; the report gives each frame's change)")
-    parser.add_argument("--keep-poses", action="store_true",
-                        help="use the capture's own poses as given, even when the check against the photos finds them off "
-                             "(by default such poses are refined before stereo, and the report says what moved)")
+    parser.add_argument("--keep-poses", action="store_true", help=KEEP_POSES_HELP)
     parser.add_argument("--preview", action="store_true",
                         help="beside a .glb, also write <name>.html, a preview page (model-viewer: orbit and AR) that needs "
                              "no network; serve the folder to open it (python3 -m http.server)")
