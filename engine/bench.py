@@ -38,8 +38,24 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Optional
 
+import numpy
+import torch
+
+from .capture import load_capture
+from .model.config import StereoEvidenceConfig, VortxConfig
+from .model.vortx import VortxNet
+from .recon.driver import reconstruct, run_reconstruction
+from .recon.memory import PeakMemory
+from .recon.memory_estimate import (box_room_surface_area, coarse_voxels, estimate_memory, keep_fraction_voxels,
+                                    surface_band_voxels)
+from .recon.network import load_network
 from .recon.settings import ReconSettings
+from .recon.synthetic import make_synthetic_capture
+from .sparse.bench import bench_sparse_vs_dense
 from .stereo.options import STEREO_MATCHERS
+from .texture.options import TextureOptions
+from .texture.views import views_from_capture
+from .texture.vr import textured_result
 
 MB = 2**20
 STEREO_CPU_BUDGET = 2.0  # stereo fusion may take this many times VoRTX's CPU seconds on the same capture
@@ -93,9 +109,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def machine_info() -> dict[str, Any]:
-    import numpy
-    import torch
-
     cpu = platform.processor() or platform.machine()
     try:
         with open("/proc/cpuinfo") as f:
@@ -119,8 +132,6 @@ def machine_info() -> dict[str, Any]:
 
 def bench_capture(case: Case, workdir: Path) -> Any:
     """The generated capture of `case` (made once per frame count in `workdir`), loaded."""
-    from .capture import load_capture
-    from .recon.synthetic import make_synthetic_capture
 
     capture_dir = workdir / f"room_{case.frames}_frames"
     if not capture_dir.exists():
@@ -131,8 +142,6 @@ def bench_capture(case: Case, workdir: Path) -> Any:
 
 def run_case(case: Case, device: str, workdir: Path) -> dict[str, Any]:
     """One VoRTX run (random weights of the official widths) of `case`."""
-    from .recon import ReconSettings, reconstruct
-    from .recon.memory_estimate import estimate_memory
 
     capture = bench_capture(case, workdir)
     settings = ReconSettings(method="vortx", weights="random", views=case.views, device=device,
@@ -182,7 +191,6 @@ def stereo_cases(cases: tuple[Case, ...]) -> list[Case]:
 def run_stereo_case(case: Case, device: str, workdir: Path, matcher: Optional[str] = None) -> tuple[dict[str, Any], Any]:
     """One run of the classical stereo method (default settings, or another `matcher`) on `case`'s
     capture and region. -> (the run's numbers, its mesh: the texture bake's input)."""
-    from .recon import ReconSettings, reconstruct
 
     capture = bench_capture(case, workdir)
     settings = ReconSettings(method="stereo", device=device, max_room_size=case.region)
@@ -218,13 +226,7 @@ def network_seconds(timings: dict[str, float]) -> float:
 
 def run_evidence_case(case: Case, device: str, workdir: Path, weights: Optional[Path]) -> dict[str, Any]:
     """One run of the learned method with stereo evidence on `case`'s capture and region, default settings."""
-    import torch
 
-    from .model.config import StereoEvidenceConfig, VortxConfig
-    from .model.vortx import VortxNet
-    from .recon import ReconSettings
-    from .recon.driver import run_reconstruction
-    from .recon.network import load_network
 
     settings = ReconSettings(method="vortx", device=device, max_room_size=case.region)
     if weights is not None:
@@ -260,10 +262,6 @@ def compare_with_stereo(evidence_run: dict[str, Any], stereo_runs: list[dict[str
 def run_texture_case(case: Case, mesh: Any, texture_size: int, workdir: Path) -> dict[str, Any]:
     """The VR preset's texture bake of `mesh` (made from `case`'s capture) from all that capture's
     photos at `texture_size`: the stages' seconds and the bake's peak RSS."""
-    from .recon.memory import PeakMemory
-    from .texture.options import TextureOptions
-    from .texture.views import views_from_capture
-    from .texture.vr import textured_result
 
     views = views_from_capture(bench_capture(case, workdir))
     options = TextureOptions(texture_size=texture_size)
@@ -294,8 +292,6 @@ def stage_sum(timings: dict[str, float], prefix: str) -> float:
 
 def projected_memory(runs: list[dict[str, Any]]) -> dict[str, Any]:
     """The memory model applied to a 10 x 10 x 3 m room at N = 60, 640 x 480, 4 cm."""
-    from .recon.memory_estimate import (box_room_surface_area, coarse_voxels, estimate_memory,
-                                        keep_fraction_voxels, surface_band_voxels)
 
     fractions = [[r["occupied"][i] / r["voxels"][i] for r in runs if len(r["voxels"]) > i and r["voxels"][i]] for i in (0, 1)]
     keep = tuple(float(sum(f) / len(f)) if f else 0.5 for f in fractions)
@@ -400,8 +396,6 @@ def markdown(report: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from .sparse.bench import bench_sparse_vs_dense
-
     cases = QUICK_CASES if args.quick else FULL_CASES
     report: dict[str, Any] = {"machine": machine_info(), "quick": bool(args.quick), "image_size": list(IMAGE_SIZE), "runs": []}
     started = time.perf_counter()

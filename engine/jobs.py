@@ -55,7 +55,7 @@ class TqdmProgress:
         self._disable = disable
 
     def __call__(self, stage: str, done: int, total: int) -> None:
-        from tqdm import tqdm  # tqdm: only the command line's progress bar
+        from tqdm import tqdm  # defers tqdm: only the command line's progress bar
 
         if stage != self._stage:
             self.close()

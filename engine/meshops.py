@@ -65,8 +65,8 @@ def face_pieces(faces: np.ndarray, vertex_count: int) -> tuple[np.ndarray, np.nd
     faces: (F, 3) int vertex indices. Returns (labels (F,) int64: the piece of each face, numbered
     0..P-1 in order of each piece's first face; sizes (P,) int64: faces per piece).
     """
-    from scipy.sparse import coo_matrix  # scipy: slow to import, only when this runs
-    from scipy.sparse.csgraph import connected_components  # scipy: slow to import, only when this runs
+    from scipy.sparse import coo_matrix  # defers scipy: slow to import
+    from scipy.sparse.csgraph import connected_components  # defers scipy: slow to import
 
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     if len(faces) == 0:

@@ -48,7 +48,7 @@ def _exif_tag(exif: Image.Exif, tag: int) -> Optional[float]:
     """A numeric tag from the Exif sub-IFD (or IFD0, where some writers put it), or None."""
     value = None
     try:
-        from PIL import ExifTags  # Pillow: deferred off the light paths
+        from PIL import ExifTags  # defers PIL (Pillow) off the light paths
 
         value = exif.get_ifd(ExifTags.IFD.Exif).get(tag)
     except Exception:  # a malformed sub-IFD must not make a readable photo unusable
@@ -71,7 +71,7 @@ def focal_35mm_equivalent(focal_px: float, width: int, height: int) -> int:
 def focal_exif_block(focal_px: float, width: int, height: int) -> bytes:
     """A JPEG APP1 payload ("Exif\\0\\0" + TIFF) holding just the 35 mm-equivalent focal length, what
     a phone photo tells about its lens (`focal_length_pixels` reads it back)."""
-    from PIL import ExifTags, Image  # Pillow: deferred off the light paths
+    from PIL import ExifTags, Image  # defers PIL (Pillow) off the light paths
 
     exif = Image.Exif()
     exif.get_ifd(ExifTags.IFD.Exif)[_FOCAL_LENGTH_35MM] = focal_35mm_equivalent(focal_px, width, height)

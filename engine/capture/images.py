@@ -88,7 +88,7 @@ def read_image_info(path: Path, verify: bool = True) -> ImageInfo:
     if not data:
         raise UnusableImage(path, "an empty file (0 bytes)", "re-copy it, or remove it from the capture")
     digest = hashlib.blake2b(data, digest_size=16).hexdigest()
-    from PIL import Image  # imported here so the extension registers in a Blender without Pillow
+    from PIL import Image  # defers PIL: the extension registers in a Blender without Pillow
 
     try:
         with Image.open(io.BytesIO(data)) as image:
@@ -129,7 +129,7 @@ def load_image(path: Path | str) -> np.ndarray:
     except OSError as error:
         raise CaptureError(f"cannot read image {path}: {error.strerror or error}. Check that the file exists "
                            "and is readable.") from error
-    import cv2  # OpenCV: deferred off the light paths
+    import cv2  # defers cv2 (OpenCV) off the light paths
     bgr = cv2.imdecode(data, cv2.IMREAD_COLOR) if data.size else None
     if bgr is None:
         raise CaptureError(f"image {path} cannot be decoded (corrupt or not a JPEG/PNG): re-export it or "
@@ -144,7 +144,7 @@ def load_depth(path: Path | str) -> np.ndarray:
         data = np.fromfile(str(path), dtype=np.uint8)
     except OSError as error:
         raise CaptureError(f"cannot read depth map {path}: {error.strerror or error}") from error
-    import cv2  # OpenCV: deferred off the light paths
+    import cv2  # defers cv2 (OpenCV) off the light paths
     depth = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     if depth is None or depth.ndim != 2:
         raise CaptureError(f"depth map {path} is not a single-channel 16-bit PNG in millimetres: re-export it "
@@ -182,6 +182,6 @@ def load_resized(frame: "Frame", size: tuple[int, int]) -> np.ndarray:
     image = load_image(frame.image_path)
     if image.shape[1] == size[0] and image.shape[0] == size[1]:
         return image
-    import cv2  # OpenCV: deferred off the light paths
+    import cv2  # defers cv2 (OpenCV) off the light paths
     shrinking = size[0] < image.shape[1]
     return cv2.resize(image, size, interpolation=cv2.INTER_AREA if shrinking else cv2.INTER_LINEAR)

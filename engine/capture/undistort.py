@@ -42,7 +42,7 @@ def has_distortion(dist: np.ndarray) -> bool:
 def undistorted_intrinsics(K: np.ndarray, dist: np.ndarray, size: tuple[int, int]) -> np.ndarray:
     """Pinhole K (3, 3) of the undistorted image of `size` (width, height); K, dist as in the capture."""
     K_cv = _HALF_PIXEL @ K
-    import cv2  # OpenCV: deferred off the light paths
+    import cv2  # defers cv2 (OpenCV) off the light paths
     new_K_cv, _ = cv2.getOptimalNewCameraMatrix(K_cv, _opencv_coefficients(dist), size, 0.0, size)
     return np.linalg.inv(_HALF_PIXEL) @ new_K_cv
 
@@ -76,7 +76,7 @@ def undistort_images(sources: list[Path], K: np.ndarray, dist: np.ndarray, size:
 
     reset_folder(folder)
     new_K = undistorted_intrinsics(K, dist, size)
-    import cv2  # OpenCV: deferred off the light paths
+    import cv2  # defers cv2 (OpenCV) off the light paths
     map_x, map_y = cv2.initUndistortRectifyMap(_HALF_PIXEL @ K, dist, None, _HALF_PIXEL @ new_K, size,
                                                cv2.CV_16SC2)
     # PNG stays lossless; photos are re-encoded as JPEG quality 95 (visually lossless, 10x smaller).

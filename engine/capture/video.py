@@ -38,7 +38,7 @@ def is_video_file(path: Path) -> bool:
 
 def sharpness(rgb_or_bgr: np.ndarray) -> float:
     """Variance of the Laplacian of a grey copy at most 640 px wide (higher = sharper)."""
-    import cv2  # OpenCV: deferred off the light paths
+    import cv2  # defers cv2 (OpenCV) off the light paths
     grey = cv2.cvtColor(rgb_or_bgr, cv2.COLOR_BGR2GRAY) if rgb_or_bgr.ndim == 3 else rgb_or_bgr
     if grey.shape[1] > _SHARPNESS_WIDTH:
         height = max(1, round(grey.shape[0] * _SHARPNESS_WIDTH / grey.shape[1]))
@@ -57,7 +57,7 @@ def blurry_frames(scores: list[float], blur_fraction: float) -> list[int]:
 def _extract(video: Path, folder: Path, fps: float, progress: Optional[ProgressFn],
              cancel: Optional[CancelToken]) -> tuple[list[str], list[float], list[str]]:
     """Writes the sampled frames; returns their file names, sharpness and warnings."""
-    import cv2  # OpenCV: deferred off the light paths
+    import cv2  # defers cv2 (OpenCV) off the light paths
     capture = cv2.VideoCapture(str(video))
     if not capture.isOpened():
         raise CaptureError(f"cannot open video {video}: the file is damaged or its codec is not supported by "

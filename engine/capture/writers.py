@@ -127,7 +127,7 @@ def write_scannet(capture: Capture, out_dir: Path | str, overwrite: bool = False
         if frame.image_path.suffix.lower() in _COPY_SUFFIXES:
             shutil.copyfile(frame.image_path, target)
         else:
-            import cv2  # OpenCV: deferred off the light paths
+            import cv2  # defers cv2 (OpenCV) off the light paths
             ok, encoded = cv2.imencode(".jpg", cv2.cvtColor(load_image(frame.image_path), cv2.COLOR_RGB2BGR),
                                        [cv2.IMWRITE_JPEG_QUALITY, 95])
             if not ok:

@@ -22,7 +22,7 @@ class SceneBuilder:
     """Creates and remembers Blender datablocks for one room."""
 
     def __init__(self, name: str) -> None:
-        import bpy  # bpy: only inside Blender
+        import bpy  # defers bpy: only inside Blender
 
         self.bpy = bpy
         self.created: list[Any] = []
@@ -205,7 +205,7 @@ class SceneBuilder:
     # -------------------------------------------------------------------------- lights, world
 
     def add_lights(self, lights: list[LightSpec]) -> None:
-        from mathutils import Vector  # mathutils: only inside Blender
+        from mathutils import Vector  # defers mathutils: only inside Blender
 
         for i, spec in enumerate(lights):
             data = self._track(self.bpy.data.lights.new(f"light{i}", spec.kind))

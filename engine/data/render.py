@@ -16,6 +16,7 @@ from typing import Any, Optional
 
 import numpy as np
 
+from ..process_guards import keep_triton_out
 from .blender_scene import SceneBuilder
 from .geometry import MeshPart
 from .room import RoomSpec
@@ -66,10 +67,9 @@ class RoomRenderer:
                  lossless_color: bool = False) -> None:
         """lossless_color: write the colour as 8-bit PNG instead of JPEG (a "real" room degrades the
         render before its one JPEG compression, engine.data.degrade)."""
-        from ..process_guards import keep_triton_out
 
         keep_triton_out()  # a Workbench render here must not meet Triton later (see process_guards)
-        import bpy  # bpy: only inside Blender
+        import bpy  # defers bpy: only inside Blender
 
         self.bpy = bpy
         self.settings = settings
@@ -176,7 +176,7 @@ class RoomRenderer:
     def render(self, cam_to_world: np.ndarray, color_path: Path) -> np.ndarray:
         """Render one view: writes the colour JPEG (PNG if lossless_color) to `color_path`, returns planar depth (H, W) float32
         metres (0 where the ray hits nothing). cam_to_world (4, 4) in OpenCV axes."""
-        from mathutils import Matrix  # mathutils: only inside Blender
+        from mathutils import Matrix  # defers mathutils: only inside Blender
 
         # Blender cameras look down -Z with +Y up: the OpenCV camera rotated 180 deg about x.
         self.camera.matrix_world = Matrix((np.asarray(cam_to_world) @ np.diag([1.0, -1.0, -1.0, 1.0])).tolist())
@@ -229,6 +229,6 @@ class RoomRenderer:
 
 
 def bpy_version() -> str:
-    import bpy  # bpy: only inside Blender
+    import bpy  # defers bpy: only inside Blender
 
     return bpy.app.version_string

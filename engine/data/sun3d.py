@@ -23,11 +23,12 @@ from typing import Optional
 import cv2
 import numpy as np
 
+from . import scannet_layout as layout
 from ..errors import VortxError
 from ..jobs import ProgressCallback, report
 from ..mesh_io import write_ply
+from ..recon.mesh import extract_mesh
 from ..tsdf.integration import fuse_ground_truth
-from . import scannet_layout as layout
 
 SOURCE_COMMIT = "4b4a3687e5baca3098ab1791b0b30948650a0667"
 MAX_SENSOR_DEPTH = 4.0  # metres: an Xtion's depth beyond this is too noisy to be a truth
@@ -67,7 +68,6 @@ def z_up_rotation(poses: np.ndarray) -> np.ndarray:
 
 def convert_sun3d(source: Path, out: Path, progress: Optional[ProgressCallback] = None) -> dict:
     """Write the room folder `out` from the sample folder `source`; returns a summary dict."""
-    from ..recon.mesh import extract_mesh
 
     source, out = Path(source), Path(out)
     if out.exists() and any(out.iterdir()):

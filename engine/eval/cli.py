@@ -13,13 +13,15 @@ import argparse
 import json
 from pathlib import Path
 
+from ..capture import load_capture
+from ..data.room_folders import gt_path as room_tsdf_path
 from ..errors import VortxError
 from ..mesh_io import read_ply
 from ..tsdf.volume import TsdfVolume
 from .depth_metrics import DEPTH_METRIC_NAMES, capture_depth_views, mesh_depth_metrics
 from .mesh_metrics import MeshMetrics, evaluate_mesh
-from .surface_metrics import SURFACE_LEGEND, SurfaceMetrics, evaluate_surface, surface_table
 from .room_box import fit_room_box, room_box_from_tsdf
+from .surface_metrics import SURFACE_LEGEND, SurfaceMetrics, evaluate_surface, surface_table
 
 COLUMNS = ("acc", "comp", "prec", "recall", "fscore")
 
@@ -48,7 +50,6 @@ def run(args: argparse.Namespace) -> int:
         room = gt_path
         gt_path = room / "mesh_gt.ply"
         if observed_path is None:
-            from ..data.room_folders import gt_path as room_tsdf_path
 
             observed_path = room_tsdf_path(room)  # the renderer's, or the one training fused
     for path in (args.pred, gt_path) + ((observed_path,) if observed_path else ()):
@@ -65,7 +66,6 @@ def run(args: argparse.Namespace) -> int:
         if not source.is_dir():
             raise VortxError(f"--depth needs a capture folder with depth maps (a rendered room or ScanNet scene); "
                              f"{source} is not a folder")
-        from ..capture import load_capture
 
         depth_views = capture_depth_views(load_capture(source), every=max(1, args.depth_every))
 

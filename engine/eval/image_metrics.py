@@ -37,7 +37,7 @@ def ssim(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> float:
     only the masked pixels' differences count and what lies outside (a render's empty background)
     cannot lower the score.
     """
-    from skimage.metrics import structural_similarity  # scikit-image: slow to import, only when this runs
+    from skimage.metrics import structural_similarity  # defers skimage (scikit-image): slow to import
 
     a, b, mask = _checked(a, b, mask)
     b = np.where(mask[..., None], b, a)

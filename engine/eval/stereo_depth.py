@@ -31,7 +31,15 @@ from typing import Optional, Sequence
 import cv2
 import numpy as np
 
+from ..capture import load_capture, load_depth
+from ..data.room_folders import find_rooms
+from ..errors import VortxError
 from ..geometry.depth_normals import depth_normals
+from ..poses.prepare import SFM_NEVER, prepare_capture
+from ..recon.driver import resolve_device
+from ..recon.plan import plan_reconstruction
+from ..recon.settings import ReconSettings, add_setting_arguments, settings_from_arguments
+from ..recon.stereo_fusion import stereo_depth_maps, stereo_options
 
 WITHIN = 0.05
 NORMAL_ANGLE_DEG = 30.0
@@ -75,7 +83,6 @@ def compare_depth(depth: np.ndarray, confidence: np.ndarray, true: np.ndarray, K
 
 def true_depth_at(frame, size: tuple[int, int]) -> np.ndarray:
     """The frame's true depth resized to (w, h) by nearest neighbour (no mixing across edges)."""
-    from ..capture import load_depth
 
     depth = load_depth(frame.depth_path).astype(np.float32)
     return cv2.resize(depth, size, interpolation=cv2.INTER_NEAREST)
@@ -84,13 +91,6 @@ def true_depth_at(frame, size: tuple[int, int]) -> np.ndarray:
 def evaluate_room_depth(room: Path, settings=None, keep_poses: bool = False, progress=None) -> dict:
     """Stereo depth metrics of one room: per reference frame and their mean, with the poses the
     product would use (refined when the photo check finds them off, unless `keep_poses`)."""
-    from ..capture import load_capture
-    from ..recon.plan import plan_reconstruction
-    from ..recon.settings import ReconSettings
-    from ..recon.stereo_fusion import stereo_depth_maps, stereo_options
-    from ..recon.driver import resolve_device
-    from ..poses.prepare import SFM_NEVER, prepare_capture
-    from ..errors import VortxError
 
     settings = settings or ReconSettings()
     given = load_capture(room)
@@ -128,8 +128,6 @@ def format_rows(results: Sequence[dict]) -> str:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..recon.settings import add_setting_arguments
-
     parser.add_argument("rooms", nargs="+", type=Path, help="room folders with true depth (rendered rooms, the SUN3D "
                         "room of scripts/sun3d_room.py, ScanNet-layout scenes), or folders of them")
     parser.add_argument("--json", type=Path, help="write the per-frame and mean metrics here")
@@ -140,9 +138,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.room_folders import find_rooms
-    from ..recon.settings import settings_from_arguments
-
     settings = settings_from_arguments(args, method="stereo")
     results = [evaluate_room_depth(room, settings, keep_poses=args.keep_poses) for room in find_rooms(args.rooms)]
     print(format_rows(results))

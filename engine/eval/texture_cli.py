@@ -16,14 +16,17 @@ import argparse
 import json
 from pathlib import Path
 
+from ..capture import load_capture
 from ..errors import VortxError
 from ..jobs import TqdmProgress
+from ..mesh_io import read_ply
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
+from ..poses.prepare import SFM_NEVER, prepare_capture
+from ..recon.settings import ReconSettings, add_setting_arguments
+from .texture_views import heldout_texture_report, report_table, spread_heldout, write_comparison_picture
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..recon.settings import add_setting_arguments
-
     parser.add_argument("capture", type=Path, help="the capture the mesh was reconstructed from (with poses)")
     parser.add_argument("mesh", type=Path, help="the reconstructed mesh (.ply)")
     parser.add_argument("--gt", type=Path, help="the true mesh (.ply) in the same frame: textured the same way, a ceiling")
@@ -38,12 +41,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..capture import load_capture
-    from ..mesh_io import read_ply
-    from ..poses.prepare import SFM_NEVER, prepare_capture
-    from ..recon.settings import ReconSettings
-    from .texture_views import heldout_texture_report, report_table, spread_heldout, write_comparison_picture
-
     for path in (args.mesh, args.gt):
         if path is not None and (path.suffix.lower() != ".ply" or not path.is_file()):
             raise VortxError(f"{path}: give meshes as .ply files")

@@ -99,7 +99,7 @@ def project_points_torch(points: "torch.Tensor", K: "torch.Tensor", cam_to_world
 
     The pose is inverted in float64: poses metres from the origin lose millimetres in a float32 inverse.
     """
-    import torch  # torch: heavy, only when this runs
+    import torch  # defers torch: heavy
 
     dtype = points.dtype
     w2c = torch.linalg.inv(cam_to_world.to(torch.float64)).to(dtype)

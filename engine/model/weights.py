@@ -17,6 +17,7 @@ from safetensors.torch import load_file, save_file
 
 from ..errors import WeightsError
 from .config import VortxConfig
+from .vortx import VortxNet
 
 # The weights the extension ships with (trained by engine.train); absent until a training run
 # produces them. The path is relative to the extension root, so it holds from the CLI and Blender.
@@ -85,7 +86,6 @@ def load_state_into(model: torch.nn.Module, state: dict[str, torch.Tensor], sour
 
 def load_weights(path: str | Path, device: str | torch.device = "cpu"):
     """-> (VortxNet in eval mode on `device`, VortxConfig)."""
-    from .vortx import VortxNet  # the network pulls in the sparse package; keep config reading light
 
     config = read_config(path)
     state = load_file(str(path), device="cpu")

@@ -20,24 +20,21 @@ point reports it in the same words.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
 import numpy as np
 
 from ..capture.model import Capture
 from ..errors import PoseError
 from ..jobs import CancelToken, ProgressCallback
+from .. import poses as pose_package  # estimate_poses, refine_poses looked up at call time: tests stand in for them
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .align import Similarity
 from .gravity import KnownDistance, align_gravity_and_scale, rescale_capture
-from .refine import STATUS_NOT_REFINED, STATUS_REFUSED
-from .scale import SOURCE_GUESS, estimate_metric_scale
-
-if TYPE_CHECKING:
-    from .quality import PoseCheck
-    from .refine import RefineOptions, RefineResult
-    from .scale import ScaleEstimate
-    from .sfm import PoseResult, SfmOptions
+from .quality import MIN_CHECK_FRAMES, PoseCheck, check_given_poses
+from .refine import STATUS_NOT_REFINED, STATUS_REFUSED, RefineOptions, RefineResult
+from .scale import SOURCE_GUESS, ScaleEstimate, estimate_metric_scale
+from .sfm import PoseResult, SfmOptions
 
 # When structure from motion runs.
 SFM_NEVER = "never"  # posed frames are aligned, unposed captures are returned as they are (Blender import)
@@ -181,9 +178,7 @@ def prepare_capture(
     check, check_note = (_check_given_poses(capture, progress, cancel) if check_poses and not refine else (None, None))
     refined_because_off = bool(refine_when_off and check is not None and check.poses_off)
     if refine or refined_because_off:
-        from . import refine_poses  # at call time, so tests can stand in for `engine.poses.refine_poses`
-
-        refinement = refine_poses(capture, refine_options, progress=progress, cancel=cancel)
+        refinement = pose_package.refine_poses(capture, refine_options, progress=progress, cancel=cancel)
         capture = refinement.capture
         if len(refinement.points):
             points, colors = refinement.points, refinement.point_colors
@@ -242,11 +237,8 @@ def _with_sfm(
     progress: Optional[ProgressCallback],
     cancel: Optional[CancelToken],
 ) -> PreparedCapture:
-    # From the package at call time, not the top: tests stand in for `engine.poses.estimate_poses`.
-    from . import SfmOptions, estimate_poses
-
     options = replace(sfm_options or SfmOptions(), align=True, camera_height=camera_height, known_distance=known_distance)
-    result = estimate_poses(capture, options, progress=progress, cancel=cancel)
+    result = pose_package.estimate_poses(capture, options, progress=progress, cancel=cancel)
     alignment = result.alignment
     assert alignment is not None  # align=True above
     capture = result.capture.with_points(result.points, result.point_colors)  # not the given capture's old points
@@ -264,8 +256,6 @@ def _check_given_poses(capture: Capture, progress: Optional[ProgressCallback], c
                        ) -> tuple[Optional["PoseCheck"], Optional[str]]:
     """Check the given poses of `capture` against its photos: the check, or None and a note saying why
     they could not be checked (too few posed photos, COLMAP could not run: the poses are used as given)."""
-    from .quality import MIN_CHECK_FRAMES, check_given_poses  # pycolmap's worker: only when a check runs
-
     checkable = [f for f in capture.frames if f.pose is not None and f.K is not None]
     if len(checkable) < MIN_CHECK_FRAMES:
         return None, (f"the given poses were not checked against the photos: {len(checkable)} posed photos "

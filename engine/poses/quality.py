@@ -16,6 +16,8 @@ import numpy as np
 
 from ..capture.naming import name_list
 from ..errors import PoseError
+from .process import run_pose_job
+from .refine import _cam_from_world, neighbour_pairs
 
 if TYPE_CHECKING:
     from ..capture.model import Capture
@@ -126,8 +128,6 @@ def check_given_poses(
 
     Needs 3 or more posed frames with intrinsics (PoseError otherwise, as refinement does).
     """
-    from .process import run_pose_job
-    from .refine import _cam_from_world, neighbour_pairs
 
     posed = [f for f in capture.frames if f.pose is not None and f.K is not None]
     if len(posed) < 3:

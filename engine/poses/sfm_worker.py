@@ -72,7 +72,7 @@ def downscale_images(job: dict, image_dir: Path) -> tuple[list[dict], float, flo
     which cv2.imread applies, as the engine's K contract assumes) and the per-axis scale factors
     (scaled / source). Mixed resolutions are refused: one shared camera needs one image size.
     """
-    import cv2  # OpenCV: deferred off the light paths
+    import cv2  # defers cv2 (OpenCV) off the light paths
 
     image_dir.mkdir(parents=True, exist_ok=True)
     images = job["images"]
@@ -110,7 +110,7 @@ def downscale_images(job: dict, image_dir: Path) -> tuple[list[dict], float, flo
 
 def reader_options(job: dict, sx: float, sy: float):
     """Camera model and (for "prior"/"fixed") its starting parameters in the downscaled pixels."""
-    import pycolmap  # pycolmap: heavy and optional, only in the SfM worker
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     options = pycolmap.ImageReaderOptions()
     mode, model = job["intrinsics"], job["camera_model"]
@@ -133,7 +133,7 @@ def reader_options(job: dict, sx: float, sy: float):
 
 
 def _median_keypoints(db_path: Path) -> float:
-    import pycolmap  # pycolmap: heavy and optional, only in the SfM worker
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     with pycolmap.Database.open(str(db_path)) as db:
         counts = [db.num_keypoints_for_image(im.image_id) for im in db.read_all_images()]
@@ -142,7 +142,7 @@ def _median_keypoints(db_path: Path) -> float:
 
 def database_stats(db_path: Path) -> dict:
     """Keypoints per image and verified pairs: what the user needs to hear when nothing registers."""
-    import pycolmap  # pycolmap: heavy and optional, only in the SfM worker
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     with pycolmap.Database.open(str(db_path)) as db:
         num_images = db.num_images()
@@ -157,7 +157,7 @@ def database_stats(db_path: Path) -> dict:
 
 
 def run_sfm(job: dict) -> None:
-    import pycolmap  # pycolmap: heavy and optional, only in the SfM worker
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     # INFO lines carry the per-image progress the parent parses; they go to this process's stderr.
     pycolmap.logging.minloglevel = 0
@@ -292,7 +292,7 @@ def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: fl
 def _extract(job: dict, db_path: Path, image_dir: Path, names: list[str], reader,
              peak_threshold: Optional[float] = None) -> None:
     """SIFT features of `names` into the database; `peak_threshold` replaces COLMAP's contrast threshold."""
-    import pycolmap  # pycolmap: heavy and optional, only in the SfM worker
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.num_threads = int(job["num_threads"])
@@ -327,7 +327,7 @@ def run_refine(job: dict) -> None:
     freedom make the normal equations singular); the caller brings the result back to the given
     world with a similarity fit, so the gauge choice does not matter.
     """
-    import pycolmap  # pycolmap: heavy and optional, only in the SfM worker
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     pycolmap.logging.minloglevel = 0
     pycolmap.logging.logtostderr = True
@@ -407,7 +407,7 @@ def run_refine(job: dict) -> None:
 
 
 def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loose_angle_deg, focal: float):
-    import pycolmap  # pycolmap: heavy and optional, only in the SfM worker
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     options = pycolmap.IncrementalPipelineOptions()
     if loose_angle_deg is not None:
@@ -422,7 +422,7 @@ def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loos
 
 
 def _bundle_adjust(reconstruction) -> None:
-    import pycolmap  # pycolmap: heavy and optional, only in the SfM worker
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_focal_length = False

@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from .plan import ReconPlan, plan_reconstruction
+from .recon_result import ReconResult
 from .settings import ReconSettings
 from .tiles import BOX_EDGES, Tile, TileState, VoxelGrid, tile_grid
 
@@ -28,13 +29,8 @@ __all__ = [
 
 
 def __getattr__(name: str) -> Any:
-    # The driver imports torch; load it only when someone asks for it.
     if name == "reconstruct":
-        from .driver import reconstruct
+        from .driver import reconstruct  # defers torch (the driver imports it) until someone asks for it
 
         return reconstruct
-    if name == "ReconResult":
-        from .recon_result import ReconResult
-
-        return ReconResult
     raise AttributeError(name)

@@ -26,6 +26,9 @@ from ..jobs import TqdmProgress
 from ..mesh_io import write_ply
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import KEEP_POSES_HELP, SFM_IF_UNPOSED, PreparedCapture, prepare_capture
+from ..texture.files import write_textured
+from ..texture.views import views_from_capture
+from ..texture.vr import textured_result
 from .output_frame import FRAME_CAPTURE, FRAME_WORLD, frame_record, moved_mesh, world_to_output
 from .presets import add_quality_argument, quality_of, refuse_unused_quality, settings_from_quality_arguments
 from .settings import (ReconSettings, add_setting_arguments, given_settings, refuse_ignored_settings,
@@ -94,6 +97,7 @@ def run(args: argparse.Namespace) -> int:
     refuse_unused_quality(settings, args.quality, given_settings(args))
     refuse_untextured_settings(given_settings(args), out.suffix.lower() != ".ply", "--out room.glb, room.obj or room.usdz")
 
+    # defers torch (the driver loads it): `engine reconstruct --help` and refused settings answer at once
     from .driver import reconstruct
 
     capture = load_capture(args.capture)
@@ -125,9 +129,6 @@ def run(args: argparse.Namespace) -> int:
         if out.suffix.lower() != ".ply":
             out.unlink(missing_ok=True)  # no stale textured file of an earlier run
             if not result.is_empty:
-                from ..texture.files import write_textured
-                from ..texture.views import views_from_capture
-                from ..texture.vr import textured_result
 
                 try:
                     textured, texture_stats = textured_result(result.mesh, views_from_capture(capture),

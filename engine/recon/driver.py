@@ -30,6 +30,7 @@ from .memory import PeakMemory
 from .mesh import extract_mesh
 from .network import load_network
 from .plan import ReconPlan, plan_reconstruction
+from . import stereo_fusion  # its functions looked up at call time: tests stand in for stereo_depth_maps
 from .recon_result import ReconResult, StageTimer, empty_mesh
 from .settings import LEVEL_SCALES, ReconSettings, level_label
 from .tiles import TileState
@@ -58,9 +59,7 @@ def reconstruct(
     settings.validate()
     device = resolve_device(settings.device)
     if settings.method == "stereo":
-        from .stereo_fusion import run_stereo_fusion
-
-        return run_stereo_fusion(capture, settings, device, progress, cancel, plan)
+        return stereo_fusion.run_stereo_fusion(capture, settings, device, progress, cancel, plan)
     model, config, weights_label = load_network(settings.weights, settings.seed, device)
     return run_reconstruction(model, capture, settings, device, progress, cancel, plan, model_info={
         "weights": weights_label,
@@ -102,10 +101,9 @@ def run_reconstruction(
             plan = plan or plan_reconstruction(capture, settings, progress, cancel)
         stereo_maps = None
         if getattr(model, "uses_stereo", False):  # weights with stereo evidence: the depth maps, once
-            from .stereo_fusion import stereo_depth_maps, stereo_options
-
             with timer.stage("stereo depth"):
-                stereo_maps = stereo_depth_maps(capture, plan, stereo_options(settings, device), progress, cancel)
+                stereo_maps = stereo_fusion.stereo_depth_maps(capture, plan, stereo_fusion.stereo_options(settings, device),
+                                                             progress, cancel)
             stats["stereo"] = {"references": len(stereo_maps),
                                "completeness_mean": round(float(np.mean([m.completeness for m in stereo_maps])), 4)
                                if stereo_maps else 0.0}
@@ -206,12 +204,10 @@ def classical_fine_fusion(
     progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
 ) -> FineFusion:
     """The stereo method's own fused TSDF of the run's maps, in the plan grid's fine-voxel frame."""
-    from .stereo_fusion import MIN_OBSERVATIONS, classical_fusion
-
-    origin, tsdf, weight = classical_fusion(plan, list(maps), voxel_size, device, progress, cancel)
+    origin, tsdf, weight = stereo_fusion.classical_fusion(plan, list(maps), voxel_size, device, progress, cancel)
     offset = np.round((origin - plan.grid.origin) / voxel_size).astype(np.int64)
     return FineFusion(torch.from_numpy(tsdf).to(device), tuple(int(o) for o in offset),
-                      observed=torch.from_numpy(weight >= MIN_OBSERVATIONS).to(device))
+                      observed=torch.from_numpy(weight >= stereo_fusion.MIN_OBSERVATIONS).to(device))
 
 
 def _coarse_coords(plan: ReconPlan) -> torch.Tensor:

@@ -18,7 +18,7 @@ training targets: 3 coarse voxels = 0.48 m, 4 medium voxels = 0.32 m at the defa
 
 `estimate_capture_memory` applies the model to one capture under a run's settings and adds the
 Blender process and the VR texture bake: the memory a batch run declares per capture on a Ray
-cluster (scripts/vortx_batch_ray.py).
+cluster (engine/batch/ray_cluster.py).
 """
 
 from __future__ import annotations

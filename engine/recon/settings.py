@@ -389,7 +389,7 @@ def refuse_ignored_settings(settings: ReconSettings, given: set[str], name_of: A
     stereo_knobs = {f.name for f in setting_fields() if STEREO_EVIDENCE_WEIGHTS in f.metadata["methods"]}
     stereo_weights = False
     if settings.method == "vortx" and given & stereo_knobs:
-        from .network import weights_take_stereo  # torch: imported only when it matters
+        from .network import weights_take_stereo  # defers torch: only when it matters
 
         stereo_weights = weights_take_stereo(settings.weights)
     refuse_unused_settings(settings.method, given, stereo_weights, name_of)

@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import warnings
 from typing import Optional
 
 import cv2
@@ -46,7 +47,6 @@ def median_depth(depth: np.ndarray, size: int = MEDIAN_SIZE, tolerance: float = 
     padded = np.pad(np.where(depth > 0, depth, np.nan).astype(np.float32), half, constant_values=np.nan)
     stack = np.stack([padded[dy:dy + h, dx:dx + w] for dy in range(size) for dx in range(size)])
     with np.errstate(all="ignore"):
-        import warnings
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)

@@ -107,7 +107,7 @@ def smooth_positions(vertices: np.ndarray, faces: np.ndarray, iterations: int) -
     """(V, 3) float64 after `iterations` Taubin steps: move each vertex toward the mean of its edge
     neighbours by TAUBIN[0], then away by TAUBIN[1]; noise goes, the overall shape and size stay.
     Vertices on open borders do not move."""
-    from scipy.sparse import coo_matrix, diags  # scipy: slow to import, only when this runs
+    from scipy.sparse import coo_matrix, diags  # defers scipy: slow to import
 
     n = len(vertices)
     rows = np.concatenate([faces[:, 0], faces[:, 1], faces[:, 2], faces[:, 1], faces[:, 2], faces[:, 0]])
@@ -143,7 +143,7 @@ def xatlas_layout(positions: np.ndarray, faces: np.ndarray, block_faces: np.ndar
     padding raised by PADDING_MARGIN to cover the usual overshoot; the caller scales the atlas into the
     square (one density, no squeeze) and reports the padding that is left.
     """
-    import xatlas  # xatlas: optional native package
+    import xatlas  # defers xatlas: optional native package
 
     blocks = np.split(block_faces, block_ends[:-1])
     atlas = xatlas.Atlas()

@@ -21,16 +21,17 @@ from ..jobs import TqdmProgress
 from ..mesh_io import read_ply
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import SFM_NEVER, prepare_capture
+from ..recon.cli import sidecar_path
+from ..recon.settings import ReconSettings, add_setting_arguments
 from .files import TEXTURED_SUFFIXES, write_textured
 from .views import views_from_capture
+from .vr import textured_result
 
 TEXTURE_FLAGS = ("texture_size", "face_budget", "headset")
 LITTLE_SEEN = 0.05  # below this share of the texels seen by a photo, the capture and mesh do not match
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    from ..recon.settings import add_setting_arguments
-
     parser.add_argument("capture", type=Path, help="the capture the mesh was reconstructed from (with poses)")
     parser.add_argument("mesh", type=Path, help="the mesh (.ply, normals facing the cameras, as `reconstruct` writes it)")
     parser.add_argument("--out", type=Path, required=True, help="the textured result: .glb (one file), .obj "
@@ -50,9 +51,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..recon.settings import ReconSettings
-    from .vr import textured_result
-
     if args.out.suffix.lower() not in TEXTURED_SUFFIXES:
         raise VortxError(f"--out {args.out}: a textured result is written as .glb, .obj or .usdz")
     if args.mesh.suffix.lower() != ".ply" or not args.mesh.is_file():
@@ -79,7 +77,6 @@ def run(args: argparse.Namespace) -> int:
 
 def report_texture(out: Path, written: list[Path], stats: dict) -> int:
     """Sidecar beside `out` and one line for the user; a warning when the photos saw little of the mesh."""
-    from ..recon.cli import sidecar_path
 
     sidecar_path(out).write_text(json.dumps({"texture": stats, "files": [str(p) for p in written]}, indent=1) + "\n")
     seen = stats["texels_seen"] / max(stats["texels"], 1)

@@ -57,7 +57,7 @@ def basisu_path(needed_by: str) -> Path:
 
 def import_dracopy(needed_by: str):
     try:
-        import DracoPy  # DracoPy: optional encoder
+        import DracoPy  # defers DracoPy: optional encoder
     except ImportError:
         raise missing("Draco geometry compression", "pip package DracoPy 2.2.0 (requirements.txt)", needed_by,
                       "pip install DracoPy==2.2.0 (in the VoRTX environment: make venv); or choose --headset desktop "
@@ -67,11 +67,11 @@ def import_dracopy(needed_by: str):
 
 def import_usd(needed_by: str):
     try:
-        from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdUtils  # noqa: F401
+        from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdUtils  # noqa: F401  (defers pxr: optional encoder)
     except ImportError:
         raise missing("Pixar's USD library", "pip package usd-core 26.11 (requirements.txt)", needed_by,
                       "pip install usd-core==26.11 (in the VoRTX environment: make venv); or write .glb") from None
-    import pxr  # usd-core (pxr): optional encoder
+    import pxr  # defers pxr (usd-core): optional encoder
 
     return pxr
 

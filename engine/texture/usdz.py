@@ -28,7 +28,7 @@ TEXTURE_NAME = "texture.png"
 def write_usdz(path: PathLike, mesh: TexturedMesh, needed_by: str = "a USDZ file") -> Path:
     """Write `mesh` as a USDZ package at `path` (written under a temporary name, then renamed)."""
     import_usd(needed_by)
-    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdUtils, Vt  # usd-core (pxr): optional encoder
+    from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdUtils, Vt  # defers pxr (usd-core): optional encoder
 
     path = Path(path)
     if len(mesh.faces) == 0:

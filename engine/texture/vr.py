@@ -35,7 +35,7 @@ def decimate(mesh: Mesh, face_budget: int, cancel: Optional[CancelToken] = None)
     """
     if face_budget <= 0 or len(mesh.faces) <= face_budget:
         return mesh
-    from scipy.spatial import cKDTree  # scipy: slow to import, only when this runs
+    from scipy.spatial import cKDTree  # defers scipy: slow to import
 
     result = run_in_child(DECIMATE_STEP, simplified,
                           {"points": np.asarray(mesh.vertices, np.float64), "faces": np.asarray(mesh.faces, np.int32)},
@@ -57,7 +57,7 @@ def decimate(mesh: Mesh, face_budget: int, cancel: Optional[CancelToken] = None)
 def simplified(points: np.ndarray, faces: np.ndarray, face_budget: int) -> dict:
     """Quadric edge collapse (fast-simplification) to at most `face_budget` faces, run in the child
     process (see decimate). points (V, 3) float64, faces (F, 3) int32 -> {"points", "faces"}."""
-    import fast_simplification  # fast-simplification: optional native package
+    import fast_simplification  # defers fast_simplification: optional native package
 
     # The collapse order is approximate: small budgets can end above the target (300 -> 505 faces on
     # the demo room), so it is run again on its own result, a few times at most.

@@ -27,7 +27,7 @@ def sample_photometric(rng: np.random.Generator, noise: float = 0.0) -> list[tup
 
 def apply_photometric(images: np.ndarray, ops: list[tuple[str, float]], rng: np.random.Generator) -> np.ndarray:
     """Apply ops to (V, H, W, 3) uint8 RGB; returns float32 0-255."""
-    import cv2  # OpenCV: deferred off the light paths
+    import cv2  # defers cv2 (OpenCV) off the light paths
 
     x = images.astype(np.float32)
     for name, p in ops:

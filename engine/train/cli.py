@@ -29,6 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    # defers torch (rooms and the trainer load it): `engine train --help` and bad arguments answer at once
     from ..data.room_folders import find_rooms, gt_path, precompute_room
     from .loop import CHECKPOINT, Trainer
 

@@ -22,6 +22,7 @@ from torch import nn
 from ..data.room_folders import find_rooms
 from ..eval.heldout import STEREO_METHOD, evaluate_rooms
 from ..eval.surface_metrics import SURFACE_KEYS
+from ..model.weights import save_weights
 from .config import TrainConfig
 
 CURVE_FILE = "curve.jsonl"
@@ -36,7 +37,6 @@ def curve_due(cfg: TrainConfig, step: int) -> bool:
 
 def score_point(net: nn.Module, cfg: TrainConfig, step: int, out: Path) -> list[dict]:
     """Reconstruct and score the curve rooms with `net` as it is now; append and return the lines."""
-    from ..model.weights import save_weights
 
     rooms = find_rooms([cfg.resolve(r) for r in cfg.curve_rooms])
     if not rooms:

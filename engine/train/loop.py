@@ -370,7 +370,7 @@ class Trainer:
         start = time.time()
         bar = None
         if self.show_progress:
-            from tqdm import tqdm  # tqdm: only the command line's progress bar
+            from tqdm import tqdm  # defers tqdm: only the command line's progress bar
 
             bar = tqdm(total=until, initial=self.step, desc=self.cfg.name, dynamic_ncols=True)
         log = None

@@ -17,8 +17,14 @@ from pathlib import Path
 from typing import Optional
 
 import numpy as np
+import torch
 
+from ..capture import load_capture
+from ..data.room_folders import find_rooms
 from ..errors import VortxError
+from ..recon.scene_bounds import scene_bounds
+from ..recon.settings import ReconSettings
+from ..recon.stereo_fusion import stereo_options
 from ..stereo import estimate_depth_maps
 
 STEREO_FILE = "stereo_depth.npz"
@@ -51,10 +57,7 @@ def stereo_cache_path(room: Path) -> Path:
 
 def default_stereo_options():
     """The stereo options of a default CPU reconstruction (engine.recon.ReconSettings())."""
-    import torch  # torch: heavy, only when this runs
 
-    from ..recon.settings import ReconSettings
-    from ..recon.stereo_fusion import stereo_options
 
     return stereo_options(ReconSettings(), torch.device("cpu"))
 
@@ -66,7 +69,6 @@ def _options_key(options, reference_stride: int) -> str:
 
 def room_frames(room: Path):
     """The frames of a room folder that training uses (pose and depth both present), in order."""
-    from ..capture import load_capture
 
     capture = load_capture(Path(room))
     return [f for f in capture.frames if f.pose is not None and f.depth_path is not None]
@@ -76,8 +78,6 @@ def load_or_compute_room_stereo(room: Path, options=None, frames=None, log: Opti
                                 reference_stride: int = REFERENCE_STRIDE) -> RoomStereo:
     """The room's stereo maps: read from its cache when made with the same options, else computed
     and cached. frames: the room's frames when the caller has loaded them (`room_frames`)."""
-    from ..recon.settings import ReconSettings
-    from ..recon.scene_bounds import scene_bounds
 
     room = Path(room)
     options = options or default_stereo_options()
@@ -117,7 +117,6 @@ def load_or_compute_room_stereo(room: Path, options=None, frames=None, log: Opti
 
 def main(argv: Optional[list[str]] = None) -> int:
     """`python -m engine.train.room_stereo ROOMS_DIR...`: fill the stereo caches (e.g. in parallel)."""
-    from ..data.room_folders import find_rooms
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("rooms", nargs="+", type=Path, help="room folders, or folders holding room folders")

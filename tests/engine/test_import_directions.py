@@ -1,7 +1,7 @@
 """Which engine modules may import which: the dependency directions that keep one home per concept.
 
-Read from the source with `ast` (every import counts: module level, inside functions, under
-TYPE_CHECKING), so a lazy import cannot hide a cycle.
+Read from the source by tests/fixtures_import_graph.py (every import counts: module level, inside
+functions, under TYPE_CHECKING), so a lazy import cannot hide a cycle.
 - engine/stereo (plane-sweep depth, fusion internals) sits below engine/recon (the methods built on
   it): stereo never imports recon. Photo resizing lives in engine/capture/images.py for both.
 - The reconstruction dispatch (recon/driver.py) imports the stereo method (recon/stereo_fusion.py),
@@ -19,47 +19,23 @@ TYPE_CHECKING), so a lazy import cannot hide a cycle.
 
 from __future__ import annotations
 
-import ast
-from pathlib import Path
-
 import pytest
 
-ENGINE = Path(__file__).resolve().parents[2] / "engine"
+from fixtures_import_graph import GRAPH
 
-
-def module_name(path: Path) -> str:
-    parts = path.relative_to(ENGINE.parent).with_suffix("").parts
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
-
-
-MODULES = {module_name(p): p for p in ENGINE.rglob("*.py")}
+MODULES = sorted(m for m in GRAPH if m == "engine" or m.startswith("engine."))
 
 
 def imported_modules(name: str) -> set[str]:
     """The engine modules and packages `name` imports anywhere in its file."""
-    path = MODULES[name]
-    package = name if path.name == "__init__.py" else name.rsplit(".", 1)[0]
-    found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.ImportFrom):
-            if node.level:
-                base = package.split(".")[: len(package.split(".")) - (node.level - 1)]
-                target = ".".join(base + ([node.module] if node.module else []))
-            else:
-                target = node.module or ""
-            submodules = {f"{target}.{alias.name}" for alias in node.names} & MODULES.keys()
-            found |= submodules
-            if len(submodules) < len(node.names):  # names from the module itself, not only its submodules
-                found.add(target)
-        elif isinstance(node, ast.Import):
-            found |= {alias.name for alias in node.names}
-    return {m for m in found if m.startswith("engine") and m != name}
+    return {m for m in GRAPH[name] if m.startswith("engine")}
 
 
 def test_the_parser_sees_relative_lazy_and_type_checking_imports():
     # The checks below are only as good as this reading of the source: pin it on known imports.
     assert "engine.capture.images" in imported_modules("engine.stereo.depth_maps")
-    assert "engine.recon.stereo_fusion" in imported_modules("engine.recon.driver")  # lazy, inside reconstruct()
+    assert "engine.recon.stereo_fusion" in imported_modules("engine.recon.driver")  # `from . import stereo_fusion`
+    assert "engine.recon.driver" in imported_modules("engine.recon")  # lazy, inside __getattr__
     assert "engine.recon.plan" in imported_modules("engine.recon.colour")  # under TYPE_CHECKING
     assert "engine.model.outputs" in imported_modules("engine.model.stereo_evidence")
 
