@@ -1,7 +1,7 @@
 """Load this checkout into a running bpy as the `vortx` extension, exactly as an installed copy runs.
 
-Shared by the test fixture (tests/conftest.py) and the batch script (scripts/vortx_batch.py), so the
-two cannot drift apart. A local extension repository is a folder holding one folder per extension
+Shared by the test fixture (tests/conftest.py), the batch script (scripts/vortx_batch.py) and the demo
+(scripts/demo.py), so they cannot drift apart. A local extension repository is a folder holding one folder per extension
 id; a symlink named `vortx` to the checkout makes Blender import it as `bl_ext.<repo>.vortx`, so
 `__package__`, relative imports and `bpy.utils.extension_path_user` behave as after an install
 (blender-notes.md section 7).
@@ -12,11 +12,17 @@ does not start Blender.
 
 from __future__ import annotations
 
+import shutil
+import sys
+import tempfile
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Optional
+from types import ModuleType
+from typing import Iterator, Optional
 
 EXTENSION_ID = "vortx"
 CHECKOUT = Path(__file__).resolve().parent.parent
+BATCH_REPO = "vortx_checkout"  # repository name when a script mounts this checkout: bl_ext.vortx_checkout.vortx
 
 
 class ExtensionLoadError(RuntimeError):
@@ -45,8 +51,6 @@ def find_extension() -> Optional[str]:
 def enable(module_name: str) -> object:
     """Enable an extension module and return it; ExtensionLoadError with the cause when it fails
     (addon_utils only prints the traceback and returns None)."""
-    import sys
-
     import addon_utils
 
     errors: list[BaseException] = []
@@ -94,3 +98,22 @@ def unmount(repo_module: str) -> None:
     for repo in list(repos):
         if repo.module == repo_module:
             repos.remove(repo)
+
+
+@contextmanager
+def vortx_extension() -> Iterator[ModuleType]:
+    """The enabled `vortx` add-on module: an installed one, else this checkout mounted for this run
+    (and unmounted after, so nothing of it stays in the preferences)."""
+    installed = find_extension()
+    if installed is not None:
+        yield enable(installed)
+        return
+    repo_dir = Path(tempfile.mkdtemp(prefix="vortx-batch-repo-"))
+    try:
+        module_name = mount_checkout(repo_dir, repo_module=BATCH_REPO)
+        yield sys.modules[module_name]
+    finally:
+        try:
+            unmount(BATCH_REPO)
+        finally:
+            shutil.rmtree(repo_dir, ignore_errors=True)

@@ -55,34 +55,6 @@ def scannet_capture(tmp_path_factory) -> Path:
     return folder
 
 
-def test_several_captures_need_an_output_folder_and_export_takes_a_suffix() -> None:
-    from vortx_batch import parse_arguments, plan_jobs
-
-    with pytest.raises(SystemExit):
-        parse_arguments(["a", "b", "--out", "x.blend"])
-    with pytest.raises(SystemExit):
-        parse_arguments(["a", "--out", "out", "--export", "mesh.fbx"])
-    args = parse_arguments(["rooms/kitchen", "rooms/kitchen", "scans/hall/transforms.json", "--out", "out", "--export", "glb"])
-    jobs = plan_jobs(args, args.captures)
-    assert [(j.blend.name, j.report.name, j.export.name) for j in jobs] == [
-        ("kitchen.blend", "kitchen.report.json", "kitchen.glb"), ("kitchen_2.blend", "kitchen_2.report.json", "kitchen_2.glb"),
-        ("hall.blend", "hall.report.json", "hall.glb")]  # a transforms.json file: named by its folder
-    single = parse_arguments(["cap", "--out", "out/scene.blend"])
-    assert single.single and plan_jobs(single, single.captures)[0].report == Path("out/scene.report.json")
-
-
-def test_arguments_after_double_dash_or_directly() -> None:
-    from vortx_batch import parse_arguments, script_arguments
-
-    blender_argv = ["blender", "--background", "--python", "scripts/vortx_batch.py", "--", "cap", "--out", "a.blend"]
-    python_argv = ["scripts/vortx_batch.py", "cap", "--out", "a.blend"]
-    assert script_arguments(blender_argv) == script_arguments(python_argv) == ["cap", "--out", "a.blend"]
-    args = parse_arguments(["cap", "--out", "a.blend", "--export", "m.GLB", "--device", "cuda"])
-    assert args.export == Path("m.GLB") and args.device == "cuda" and args.weights is None and args.views == 60
-    with pytest.raises(SystemExit):
-        parse_arguments(["cap", "--out", "a.obj"])
-
-
 @pytest.mark.slow
 def test_batch_writes_blend_with_cameras_and_mesh(scannet_capture: Path, tmp_path: Path) -> None:
     from engine.mesh_io import read_ply

@@ -26,42 +26,6 @@ TINY = ["--method", "vortx", "--weights", "random", "--voxel-size", "0.16", "--t
 NODE_MEMORY = 2 * 2**30  # per node: room for one tiny capture (~1.5 GB declared) at a time
 
 
-def test_each_capture_runs_the_batch_script_with_the_users_options() -> None:
-    """The command of one capture's task is the batch script on that capture alone, with --out and
-    --export made its own and every other option repeated: parsed back, the same run."""
-    from vortx_batch import argument_parser, parse_arguments, plan_jobs, script_arguments
-    from vortx_batch_ray import capture_command, forwarded_options, interpreter_command
-
-    args = parse_arguments(["rooms", "--out", "out", "--export", ".ply", "--ray", "local", "--ray-cpus", "2", *TINY,
-                            "--vr", "--camera-height", "1.3"])
-    (job,) = plan_jobs(args, [Path("rooms/kitchen")])
-    command = capture_command(interpreter_command(BATCH), forwarded_options(argument_parser(), args), job)
-    assert command[:2] == [sys.executable, str(BATCH)]
-    assert "--ray" not in command and "--ray-cpus" not in command
-    again = parse_arguments(script_arguments(command[1:]))
-    assert again.captures == [Path("rooms/kitchen").absolute()] and again.single
-    assert again.out == (Path("out") / "kitchen.blend").absolute() and again.export == (Path("out") / "kitchen.ply").absolute()
-    assert again.settings == args.settings and again.vr and again.camera_height == 1.3 and again.ray is None
-    assert "--views" in command and "--seed" not in command  # options left at their default are not repeated
-
-    # Under Blender the capture runs in Blender again, its arguments after `--`.
-    blender = capture_command(interpreter_command(BATCH, "/opt/blender/blender"), [], job)
-    assert blender[:6] == ["/opt/blender/blender", "--background", "--python-exit-code", "1", "--python", str(BATCH)]
-    assert parse_arguments(script_arguments(blender)).out == again.out
-
-
-def test_a_capture_process_that_died_without_a_report_says_so() -> None:
-    from vortx_batch_ray import attempt_error
-
-    killed = {"returncode": -9, "report": None, "output_tail": "vortx [3/4] reconstruct: ...\n", "error": None}
-    assert attempt_error(killed) == ("the capture's process was killed by SIGKILL (often the system's out-of-memory "
-                                     "killer) and wrote no report; its last output: vortx [3/4] reconstruct: ...")
-    crashed = {**killed, "returncode": 1, "output_tail": "Traceback ...\nerror: Blender quit\nvortx bye\n"}
-    assert attempt_error(crashed) == "the capture's process exited with status 1 and wrote no report; its last output: error: Blender quit"
-    done = {"returncode": 0, "report": json.dumps({"status": "ok", "error": None}), "output_tail": "", "error": None}
-    assert attempt_error(done) is None
-
-
 @pytest.fixture(scope="module")
 def rooms(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("ray") / "rooms"

@@ -19,6 +19,8 @@ from pathlib import Path
 import pytest
 
 from conftest import REPO
+from engine.batch.arguments import parse_arguments
+from engine.batch.plan import plan_jobs
 from fixtures_capture import intrinsics, ring_poses, write_scannet
 from fixtures_gltf import assert_valid_gltf
 from fixtures_texture import decode_png, glb_base_colour_png, read_glb
@@ -35,20 +37,6 @@ def scannet_capture(tmp_path_factory) -> Path:
     folder = tmp_path_factory.mktemp("batch_vr") / "scan"
     write_scannet(folder, ring_poses(8, radius=1.0), intrinsics(100.0, 160, 120), (160, 120), depth=False)
     return folder
-
-
-def test_vr_flag_parses_with_the_texture_settings() -> None:
-    from vortx_batch import parse_arguments
-
-    args = parse_arguments(["cap", "--out", "a.blend", *VR])
-    assert args.vr and args.settings.texture_size == 512 and args.settings.face_budget == 300
-    assert not parse_arguments(["cap", "--out", "a.blend"]).vr
-    standalone = parse_arguments(["cap", "--out", "a.blend", "--vr", "--headset", "standalone"]).settings
-    assert standalone.texture_options.texture_format == "ktx2-etc1s"  # what Bake Texture and the export then use
-    with pytest.raises(SystemExit):  # a headset without a textured result is refused like the other texture flags
-        parse_arguments(["cap", "--out", "a.blend", "--headset", "web"])
-    with pytest.raises(SystemExit):  # the engine's own check of the texture size
-        parse_arguments(["cap", "--out", "a.blend", "--vr", "--texture-size", "1000"])
 
 
 @pytest.mark.slow
@@ -85,8 +73,6 @@ def test_batch_vr_writes_a_textured_glb_and_reports_the_bake(scannet_capture: Pa
 
 
 def test_a_failing_bake_fails_the_capture_at_the_texture_step(blender, scannet_capture, tmp_path, monkeypatch) -> None:
-    import vortx_batch
-
     vr = importlib.import_module(f"{blender.__name__}.engine.texture.vr")
 
     def failing(mesh, views, options, progress=None, cancel=None):
@@ -94,8 +80,9 @@ def test_a_failing_bake_fails_the_capture_at_the_texture_step(blender, scannet_c
 
     monkeypatch.setattr(vr, "textured_result", failing)
     out = tmp_path / "scene.blend"
-    args = vortx_batch.parse_arguments([str(scannet_capture), "--out", str(out), *TINY, *VR])
-    assert vortx_batch.run_all(args, blender, vortx_batch.plan_jobs(args, args.captures)) == 1
+    args = parse_arguments([str(scannet_capture), "--out", str(out), *TINY, *VR])
+    batch = importlib.import_module(f"{blender.__name__}.vortx_blender.batch")
+    assert batch.run_batch(args, plan_jobs(args, args.captures)) == 1
     report = json.loads((tmp_path / "scene.report.json").read_text())
     assert report["status"] == "failed" and report["failed_step"] == "texture"
     assert "the texture atlas could not be made" in report["error"]
@@ -111,13 +98,13 @@ def test_a_crash_in_the_atlas_worker_is_recorded_as_the_texture_step_failing(ble
     import shutil
 
     import fixtures_native
-    import vortx_batch
 
     atlas = importlib.import_module(f"{blender.__name__}.engine.texture.atlas")
     monkeypatch.setattr(atlas, "xatlas_layout", fixtures_native.segfault)
     out = tmp_path / "scene.blend"
-    args = vortx_batch.parse_arguments([str(scannet_capture), "--out", str(out), *TINY, *VR])
-    assert vortx_batch.run_all(args, blender, vortx_batch.plan_jobs(args, args.captures)) == 1
+    args = parse_arguments([str(scannet_capture), "--out", str(out), *TINY, *VR])
+    batch = importlib.import_module(f"{blender.__name__}.vortx_blender.batch")
+    assert batch.run_batch(args, plan_jobs(args, args.captures)) == 1
     report = json.loads((tmp_path / "scene.report.json").read_text())
     assert report["status"] == "failed" and report["failed_step"] == "texture"
     assert "texture atlas (xatlas) crashed on each of 2 tries: its worker process was killed by SIGSEGV" in report["error"]
