@@ -51,7 +51,7 @@ wait
 if [ -f $B/runs/vortx_evidence_mix/checkpoint.pt ]; then RESUME=--resume; else RESUME=; fi
 $PY -m engine train configs/train_evidence_mix.json --no-progress $RESUME
 #    The posed variant (configs/train_evidence_posed.json: the true-pose and clean rooms only) ran beside it
-#    and is the one kept in weights/experimental (MODEL.md compares both):
+#    and is the one kept in weights/experimental (docs/experiments.md compares both):
 #    $PY -m engine train configs/train_evidence_posed.json --no-progress
 
 # 5. Held-out comparison: the realistic development rooms (`make devrooms`), learned vs classical vs box.

@@ -166,7 +166,7 @@ class FineFusion:
         """(N,) for voxels (N, 3) of a level `scale` fine voxels wide: 0 where the block holds a corner of a
         marching-cubes cell through which the classical surface passes, else 1. Keeping exactly these
         blocks keeps every fine voxel the classical mesh needs and no more (a single corner sample per
-        coarse voxel lost ~14 % of the surface, MODEL.md; the whole truncation band is 3x the voxels)."""
+        coarse voxel lost ~14 % of the surface, docs/experiments.md; the whole truncation band is 3x the voxels)."""
         if scale not in self._blocks:
             self._blocks[scale] = _blocks_without_surface(surface_cell_corners(self.tsdf, self.observed), self.offset, scale)
         pooled, first = self._blocks[scale]

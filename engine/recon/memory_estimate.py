@@ -119,7 +119,7 @@ def estimate_memory(
 # test capture (160 x 120, 16 cm, 3 views) peaked at 1.43-1.50 GB RSS, while the estimate above puts
 # that reconstruction at ~0.7 GB.
 BLENDER_PROCESS_BYTES = 800 * 2**20
-# The VR preset's bake (README, texture bench): 1.9 GB at 4096 px and 6.7 GB at 8192 px on the demo
+# The VR preset's bake (docs/settings.md, texture bench): 1.9 GB at 4096 px and 6.7 GB at 8192 px on the demo
 # room, +384 MB over the start at 2048 px: 90-115 bytes per texel, whatever the room.
 TEXTURE_BYTES_PER_TEXEL = 115
 DEFAULT_IMAGE_LONG_SIDE = 640  # VortxConfig.image_long_side of the shipped (official) weights

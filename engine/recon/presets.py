@@ -68,7 +68,7 @@ PRESETS: tuple[QualityPreset, ...] = (
         {"stereo_matcher": MATCHER_PATCHMATCH, "stereo_image_size": 320},
         "PatchMatch matcher (slanted planes per pixel), 320 px stereo photos: smoother walls and floors, slower",
         # `reconstruct` of the demo room on its true poses with one thread while the machine's load average
-        # was 8-10 (MODEL.md "PatchMatch stereo"; Standard took 206 s measured the same way).
+        # was 8-10 (docs/experiments.md "PatchMatch stereo"; Standard took 206 s measured the same way).
         demo_seconds=898),
 )
 QUALITY_NAMES: tuple[str, ...] = tuple(p.name for p in PRESETS)

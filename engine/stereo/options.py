@@ -1,6 +1,6 @@
 """The knobs of plane-sweep stereo. Starting points measured outside the product (stereo-evidence.md:
 160 px, 64 inverse-depth planes, 4 sources, 5 x 5 NCC, NCC >= 0.3); the defaults here were tuned on
-the demo sample with true poses (MODEL.md, README): 200 px, 80 planes, 7 x 7 NCC, NCC >= 0.5."""
+the demo sample with true poses (MODEL.md, docs/results.md): 200 px, 80 planes, 7 x 7 NCC, NCC >= 0.5."""
 
 from __future__ import annotations
 

@@ -5,7 +5,7 @@ each of the config's `curve_rooms` (rendered rooms never trained on) through the
 pipeline (`engine.eval.heldout.evaluate_rooms`), and one line per scored method goes to
 `<out_dir>/curve.jsonl`: the step, the F-score, precision, recall and the surface metrics, means over
 the rooms and per room. At step 0 the classical stereo method is scored beside it, the baseline the
-curve must rise above (an evidence network starts exactly there). `curve_table` prints it for MODEL.md.
+curve must rise above (an evidence network starts exactly there). `curve_table` prints it for docs/experiments.md.
 """
 
 from __future__ import annotations

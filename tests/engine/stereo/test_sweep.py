@@ -1,5 +1,5 @@
 """Plane-sweep stereo against exact geometry: a textured plane (to 1 % of its depth) and the demo
-room's true mesh (depth error and completeness, asserted loosely; MODEL.md has the measured table)."""
+room's true mesh (depth error and completeness, asserted loosely; docs/experiments.md has the measured tables)."""
 
 from __future__ import annotations
 
