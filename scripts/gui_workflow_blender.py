@@ -247,8 +247,7 @@ def workflow():
         outcome = bpy.ops.vortx.estimate_poses("INVOKE_DEFAULT")
     check(outcome == {"RUNNING_MODAL"}, f"Estimate Poses runs as a modal job ({outcome})")
     yield from wait_for_job("Estimate Poses")
-    cameras = addon("vortx_blender.cameras")
-    collection = cameras.find_capture_collection(scene)
+    collection = addon("vortx_blender.scene_objects").find_capture_collection(scene)
     n_cameras = len([o for o in collection.objects if o.type == "CAMERA"]) if collection else 0
     check(settings.posed_frame_count >= len(photos) // 2, f"most photos are posed ({settings.posed_frame_count} of {len(photos)})")
     check(n_cameras == settings.posed_frame_count, f"one camera per posed photo in the capture collection ({n_cameras})")

@@ -25,22 +25,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
+import bpy
 import numpy as np
 
 from ..engine.capture import Capture, Frame
 from ..engine.capture.geometry import rigid_pose
 from ..engine.errors import CaptureError, PoseError
+from .point_cloud import scene_points
+from .scene_objects import ensure_capture_collection, find_capture_collection, place_camera
 
-if TYPE_CHECKING:
-    import bpy
-
-CAPTURE_COLLECTION_NAME = "VoRTX Capture"
 SENSOR_MM = 36.0
-# Custom property names: the collection tag marks the one collection we own; per-camera keys hold
-# the frame's exact data (IDProperty float arrays are float64, so nothing is lost).
-COLLECTION_TAG = "vortx_capture"
+# Custom property names: per-camera keys hold the frame's exact data (IDProperty float arrays are
+# float64, so nothing is lost).
 PROP_FRAME = "vortx_frame"
 PROP_IMAGE = "vortx_image"
 PROP_SIZE = "vortx_size"
@@ -195,44 +193,12 @@ def plan_capture_cameras(capture: Capture) -> CameraPlan:
 # Blender side
 
 
-def find_tagged_collection(scene: "bpy.types.Scene", tag: str) -> Optional["bpy.types.Collection"]:
-    """The collection of `scene` marked with custom property `tag` (found by tag, so renaming it is fine)."""
-    for collection in scene.collection.children_recursive:
-        if collection.get(tag):
-            return collection
-    return None
-
-
-def ensure_tagged_collection(scene: "bpy.types.Scene", tag: str, name: str) -> "bpy.types.Collection":
-    """`find_tagged_collection`, or a new collection `name` marked with `tag` in the scene."""
-    import bpy
-
-    collection = find_tagged_collection(scene, tag)
-    if collection is None:
-        collection = bpy.data.collections.new(name)
-        collection[tag] = True
-        scene.collection.children.link(collection)
-    return collection
-
-
-def find_capture_collection(scene: "bpy.types.Scene") -> Optional["bpy.types.Collection"]:
-    """The collection this extension made for `scene`'s capture."""
-    return find_tagged_collection(scene, COLLECTION_TAG)
-
-
-def ensure_capture_collection(scene: "bpy.types.Scene") -> "bpy.types.Collection":
-    """The capture collection of `scene`, made when there is none."""
-    return ensure_tagged_collection(scene, COLLECTION_TAG, CAPTURE_COLLECTION_NAME)
-
-
 def is_capture_camera(obj: "bpy.types.Object") -> bool:
     return obj.type == "CAMERA" and PROP_FRAME in obj
 
 
 def remove_capture_cameras(collection: "bpy.types.Collection") -> None:
     """Delete the cameras we created in `collection`; anything else the user put there stays."""
-    import bpy
-
     for obj in [o for o in collection.objects if is_capture_camera(o)]:
         data = obj.data
         bpy.data.objects.remove(obj, do_unlink=True)
@@ -242,11 +208,7 @@ def remove_capture_cameras(collection: "bpy.types.Collection") -> None:
 
 def apply_camera_plan(scene: "bpy.types.Scene", plan: CameraPlan) -> list["bpy.types.Object"]:
     """Replace the scene's capture cameras with `plan`'s and set the render format to match. The
-    cameras are placed in the coordinates the scene shows (frame.py)."""
-    import bpy
-
-    from .frame import place_camera
-
+    cameras are placed in the coordinates the scene shows (scene_objects.py)."""
     collection = ensure_capture_collection(scene)
     remove_capture_cameras(collection)
 
@@ -297,8 +259,6 @@ def capture_cameras(scene: "bpy.types.Scene") -> list["bpy.types.Object"]:
 def move_capture_cameras(scene: "bpy.types.Scene", poses: list[np.ndarray]) -> None:
     """Give the capture cameras (frame order) new camera-to-world `poses` (4, 4), keeping the objects
     (their names, selection and anything the user attached to them)."""
-    from .frame import place_camera
-
     for obj, pose in zip(capture_cameras(scene), poses, strict=True):
         obj[PROP_POSE] = np.asarray(pose, dtype=np.float64).ravel().tolist()
         place_camera(obj, scene, blender_matrix_from_pose(pose))
@@ -341,8 +301,6 @@ def posed_capture_from_scene(scene: "bpy.types.Scene") -> Optional[Capture]:
         frames=frames,
         metric=bool(settings.poses_metric),
     )
-    from .point_cloud import scene_points  # point_cloud builds on this module
-
     points, colours = scene_points(scene)
     return capture if points is None else capture.with_points(points, colours)
 

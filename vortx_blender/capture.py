@@ -16,7 +16,9 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
+
+import bpy
 
 from ..engine import capture as engine_capture
 from ..engine.capture import Capture
@@ -24,12 +26,10 @@ from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.poses.prepare import SFM_NEVER, PreparedCapture, prepare_capture
 from ..engine.recon.output_frame import FRAME_CAPTURE, FRAME_WORLD, NO_POSES_NO_CAPTURE_FRAME, frame_record
 from .cameras import apply_camera_plan, plan_capture_cameras
+from .frame import unavailable
 from .jobs import JobFunction
 from .point_cloud import apply_point_cloud, checked_points
 from .properties import POSES_BY_SFM, POSES_GIVEN, capture_summary, write_summary
-
-if TYPE_CHECKING:
-    import bpy
 
 
 @dataclass
@@ -49,8 +49,6 @@ def resolve_capture_path(filepath: str, directory: str = "") -> Optional[Path]:
     picking a file, and may leave `filepath` empty and set only `directory` when called from scripts.
     Relative paths ("//photos") are relative to the .blend file.
     """
-    import bpy
-
     for candidate in (filepath, directory):
         if not candidate:
             continue
@@ -120,8 +118,6 @@ def import_capture_job(path: Path, camera_height: float, frame: str = FRAME_WORL
         loaded = engine_capture.load_capture(path, progress=progress, cancel=cancel)
         cancel.check()
         if frame == FRAME_CAPTURE and not loaded.posed_frames:  # before the pose check spends seconds
-            from .frame import unavailable
-
             raise unavailable(NO_POSES_NO_CAPTURE_FRAME)
         # Given poses are checked against the photos here (seconds), so the panel can say when they look off.
         return ImportedCapture(loaded, prepare_capture(loaded, camera_height=camera_height, sfm=SFM_NEVER,

@@ -34,6 +34,7 @@ back afterwards.
 
 from __future__ import annotations
 
+import tempfile
 from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from typing import Iterator
@@ -41,6 +42,12 @@ from typing import Iterator
 import bpy
 
 from ..engine.errors import VortxError
+from ..engine.observation import EVIDENCE_ATTRIBUTES
+from ..engine.texture.encoders import basisu_path
+from ..engine.texture.options import TextureOptions
+from ..engine.texture.presets import with_preset
+from .reconstruct import recon_settings_from_scene
+from .result import SHOW_OBSERVATION, is_textured, show_observation, texture_image_of
 
 FORMATS = {".glb": "GLB", ".gltf": "glTF", ".ply": "PLY", ".obj": "OBJ", ".usdz": "USDZ"}
 FILE_GLOB = "*.glb;*.gltf;*.ply;*.obj;*.usdz"
@@ -74,8 +81,6 @@ def _only_selected(obj: bpy.types.Object, view_layer: bpy.types.ViewLayer) -> It
 def _photo_colours_shown(obj: bpy.types.Object) -> Iterator[None]:
     """The exporters write the shown colour attribute: a result showing its confidence layer (Show
     Observation) is exported with its photo colours, and shown as before afterwards."""
-    from .result import SHOW_OBSERVATION, show_observation
-
     showing = bool(getattr(obj, SHOW_OBSERVATION, False))
     if showing:
         show_observation(obj, False)
@@ -91,8 +96,6 @@ def _texture_file_beside(obj: bpy.types.Object, path: Path) -> Iterator[None]:
     """The OBJ exporter copies a texture only from a file on disk, and a baked texture is packed into
     the .blend: its PNG is written beside the .obj as <stem>_texture.png (the engine's OBJ name) and the
     image points there while the exporter runs (path_mode STRIP writes that name into the .mtl)."""
-    from .result import texture_image_of
-
     images = [image for image in map(texture_image_of, obj.data.materials) if image is not None]
     saved = [(image, image.filepath_raw) for image in images]
     try:
@@ -114,8 +117,6 @@ def _texture_files_on_disk(obj: bpy.types.Object) -> Iterator[None]:
     """Blender's USD exporter puts a texture into the .usdz only from an image file on disk, and a baked
     texture is packed into the .blend: while the exporter runs, the material's image nodes show a
     temporary image loaded from the packed PNG written to a temporary folder; everything is put back."""
-    import tempfile
-
     swapped = []  # (node, its image, the temporary image)
     with tempfile.TemporaryDirectory(prefix="vortx_usdz_") as folder:
         try:
@@ -154,8 +155,6 @@ def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types
         return _export_glb_for_headset(obj, path, view_layer, headset)
     if obj.type != "MESH":
         raise VortxError(f"'{obj.name}' is not a mesh")
-    from .result import is_textured
-
     path.parent.mkdir(parents=True, exist_ok=True)
     view_layer = view_layer or bpy.context.view_layer
     textured = is_textured(obj)
@@ -207,12 +206,7 @@ def _export_gltf(path: Path, kind: str, textured: bool, draco: bool = False) -> 
 
 def headset_options(obj: bpy.types.Object, headset: str | None):
     """The texture options of `headset` (None: the Headset setting of a scene holding `obj`)."""
-    from ..engine.texture.options import TextureOptions
-    from ..engine.texture.presets import with_preset
-
     if headset is None:
-        from .reconstruct import recon_settings_from_scene
-
         scenes = list(obj.users_scene) or [bpy.context.scene]
         settings = getattr(scenes[0], "vortx", None)
         headset = recon_settings_from_scene(settings, with_weights=False).headset if settings is not None else "desktop"
@@ -222,16 +216,14 @@ def headset_options(obj: bpy.types.Object, headset: str | None):
 def _export_glb_for_headset(obj: bpy.types.Object, path: Path, view_layer: bpy.types.ViewLayer | None,
                             headset: str | None) -> Path:
     """A GLB shaped by the headset preset (Draco, KTX2), exported under a temporary name and renamed."""
+    # defers cv2 (the KTX2 rewrite reads the texture with it): the extension registers without OpenCV
     from ..engine.texture.files import staged
     from ..engine.texture.ktx2 import glb_with_ktx2
-    from .result import is_textured
 
     options = headset_options(obj, headset)
     needed_by = f"the '{options.preset}' headset preset"
     # Draco: Blender's glTF exporter has its own Draco library. KTX2: the encoder is checked first.
     if options.texture_format != "png" and is_textured(obj):
-        from ..engine.texture.encoders import basisu_path
-
         basisu_path(needed_by)
     if view_layer is None:
         view_layer = bpy.context.view_layer
@@ -260,8 +252,6 @@ def _confidence_for_gltf(obj: bpy.types.Object) -> Iterator[None]:
     application-specific semantics, the names the engine's GLB uses). Blender's exporter writes only
     attributes whose name starts with an underscore, so upper-case copies live on the mesh for the
     export and are removed afterwards."""
-    from ..engine.observation import EVIDENCE_ATTRIBUTES
-
     mesh = obj.data
     made = []
     try:

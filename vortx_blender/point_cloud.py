@@ -10,20 +10,20 @@ point colour attribute:
 
 The object's vertices are the capture's points in the engine's world coordinates (the object keeps an
 identity transform relative to that world: under the frame empty when the scene shows the capture's
-own coordinates, frame.py), so `scene_points` reads them back exactly as the engine wrote them, up to float32.
+own coordinates, scene_objects.py), so `scene_points` reads them back exactly as the engine wrote them, up to float32.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Optional
+from typing import Optional
 
+import bmesh
+import bpy
 import numpy as np
 
-from .cameras import ensure_capture_collection, find_capture_collection
-from .frame import engine_matrix, place_new
-
-if TYPE_CHECKING:
-    import bpy
+from ..engine.colour_space import linear_to_srgb
+from .result import COLOUR_ATTRIBUTE, set_point_colours
+from .scene_objects import engine_matrix, ensure_capture_collection, find_capture_collection, place_new
 
 POINT_CLOUD_NAME = "VoRTX Sparse Points"
 POINT_CLOUD_TAG = "vortx_points"  # custom property marking the object we own
@@ -49,8 +49,6 @@ def scene_points(scene: "bpy.types.Scene") -> tuple[Optional[np.ndarray], Option
     obj = find_point_cloud(scene)
     if obj is None:
         return None, None
-    from .result import COLOUR_ATTRIBUTE, linear_to_srgb
-
     mesh = obj.data
     if mesh.is_editmode:  # the edit mesh holds the data then; the Mesh's own arrays are stale or empty
         local, rgba = _edit_mesh_arrays(mesh, COLOUR_ATTRIBUTE)
@@ -74,8 +72,6 @@ def scene_points(scene: "bpy.types.Scene") -> tuple[Optional[np.ndarray], Option
 
 def _edit_mesh_arrays(mesh: "bpy.types.Mesh", colour_name: str) -> tuple[np.ndarray, Optional[np.ndarray]]:
     """(positions (N, 3), linear RGBA (N, 4) or None) of a mesh in Edit Mode, from its BMesh."""
-    import bmesh
-
     bm = bmesh.from_edit_mesh(mesh)
     local = np.array([vertex.co[:] for vertex in bm.verts], dtype=np.float64).reshape(-1, 3)
     layer = bm.verts.layers.float_color.get(colour_name)
@@ -102,10 +98,6 @@ def checked_points(points: Optional[np.ndarray], colours: Optional[np.ndarray]) 
 def apply_point_cloud(scene: "bpy.types.Scene", points: Optional[np.ndarray], colours: Optional[np.ndarray]) -> Optional["bpy.types.Object"]:
     """Replace the scene's sparse-points object with `points` (N, 3) float32 world and `colours`
     (N, 3) 0..1 sRGB from `checked_points`; with no points, just remove the old one."""
-    import bpy
-
-    from .result import set_point_colours
-
     old = find_point_cloud(scene)
     if old is not None:
         data = old.data
@@ -135,8 +127,6 @@ def apply_point_cloud(scene: "bpy.types.Scene", points: Optional[np.ndarray], co
 def scale_point_cloud(scene: "bpy.types.Scene", obj: "bpy.types.Object", points: np.ndarray) -> None:
     """Move the point cloud's vertices to `points` (N, 3) in the engine's world (same count, same order),
     also in Edit Mode."""
-    import bmesh
-
     local = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     inverse = np.linalg.inv(engine_matrix(obj, scene))
     local = local @ inverse[:3, :3].T + inverse[:3, 3]
@@ -154,8 +144,6 @@ def scale_point_cloud(scene: "bpy.types.Scene", obj: "bpy.types.Object", points:
 
 def _mesh_to_points_group() -> "bpy.types.NodeTree":
     """The Geometry Nodes group Mesh -> Points (shared by every point cloud; made once per file)."""
-    import bpy
-
     group = bpy.data.node_groups.get(POINTS_NODE_GROUP)
     if group is not None and group.bl_idname == "GeometryNodeTree":
         return group

@@ -14,6 +14,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
 
+import bpy
+
+from ..engine import capture as engine_capture
+from ..engine import poses as engine_poses  # its functions looked up at call time: tests stand in for them
 from ..engine.capture import Capture
 from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.poses.prepare import SFM_ALWAYS, PreparedCapture, prepare_capture
@@ -37,8 +41,6 @@ class PoseSettings:
 
     @staticmethod
     def from_scene(settings: object) -> "PoseSettings":
-        import bpy
-
         return PoseSettings(
             capture_path=Path(bpy.path.abspath(settings.capture_path)),
             matcher=settings.sfm_matcher.lower(),
@@ -75,10 +77,6 @@ def estimate_poses_job(settings: PoseSettings, loaded: Optional[Capture] = None)
     None) and aligns the result to gravity and metres (`engine.poses.prepare`)."""
 
     def run(progress: ProgressCallback, cancel: CancelToken) -> PosedCapture:
-        # Imported here: the SfM code loads only when the user actually estimates poses.
-        from ..engine import capture as engine_capture
-        from ..engine import poses as engine_poses
-
         capture = loaded
         if capture is None:
             capture = engine_capture.load_capture(settings.capture_path, progress=progress, cancel=cancel)
@@ -117,9 +115,7 @@ def refine_poses_job(capture: Capture, options: Optional["RefineOptions"] = None
     main thread) against its photos with pycolmap (`engine.poses.refine_poses`, in a subprocess)."""
 
     def run(progress: ProgressCallback, cancel: CancelToken) -> RefinedPoses:
-        from ..engine.poses import refine_poses
-
-        return RefinedPoses(refine_poses(capture, options, progress=progress, cancel=cancel))
+        return RefinedPoses(engine_poses.refine_poses(capture, options, progress=progress, cancel=cancel))
 
     return run
 

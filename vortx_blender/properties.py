@@ -9,7 +9,8 @@ say so in the RNA, but it only exists from Blender 5.0 and we support 4.2.)
 No `from __future__ import annotations` here: bpy reads the property annotations as objects.
 """
 
-from typing import TYPE_CHECKING
+import importlib.util
+from typing import TYPE_CHECKING, Any
 
 import bpy
 from bpy.props import (
@@ -26,6 +27,8 @@ from bpy.props import (
 from ..engine.poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..engine.recon.presets import PRESETS, QUALITY_FIELDS, preset_values, quality_of
 from ..engine.recon.settings import BLENDER, field_default, setting_fields, setting_label, tuple_length, value_type
+from . import tile_overlay
+from .frame import frame_changed
 
 if TYPE_CHECKING:
     from dataclasses import Field
@@ -84,12 +87,10 @@ def cuda_device_name() -> str | None:
     torch is imported here, on first use, and only if it is installed at all: the extension has to
     register and draw without torch (it may be installed later through the preferences).
     """
-    import importlib.util
-
     if importlib.util.find_spec("torch") is None:
         return None
     try:
-        import torch
+        import torch  # defers torch: optional, the extension registers without it
 
         return torch.cuda.get_device_name(0) if torch.cuda.is_available() else None
     except Exception as error:  # a broken torch install must not break the panel; the run will say more
@@ -106,8 +107,6 @@ def device_items(_self: object = None, _context: object = None) -> list[tuple[st
             _device_items.append(("CUDA", "CUDA GPU", f"Run the network on {name}", "GPU", 1))
         # Probe again next time only if torch was not installed yet (an install through the
         # preferences can add it during the session); a missing GPU will not appear later.
-        import importlib.util
-
         _devices_probed = importlib.util.find_spec("torch") is not None
     return _device_items
 
@@ -121,8 +120,6 @@ QUALITY_ITEMS = [(p.name.upper(), p.label, p.description(), number) for number, 
 
 
 def _get_quality(settings: "VortxSceneSettings") -> int:
-    from .reconstruct import scene_value
-
     fields = {f.name: f for f in setting_fields(BLENDER)}
     name = quality_of({key: scene_value(fields[key], getattr(settings, blender_name(fields[key]))) for key in QUALITY_FIELDS})
     return next((number for number, p in enumerate(PRESETS) if p.name == name), len(PRESETS))
@@ -131,15 +128,11 @@ def _get_quality(settings: "VortxSceneSettings") -> int:
 def _set_quality(settings: "VortxSceneSettings", number: int) -> None:
     if number >= len(PRESETS):  # Custom: the values stay as they are
         return
-    from .reconstruct import write_scene_value
-
     for key, value in preset_values(PRESETS[number].name).items():
         write_scene_value(settings, recon_field(key), value)
 
 
 def _show_tiles_changed(settings: "VortxSceneSettings", _context: bpy.types.Context) -> None:
-    from . import tile_overlay
-
     tile_overlay.sync_draw_handler(settings.show_tiles)
 
 
@@ -310,9 +303,35 @@ def recon_field(name: str) -> "Field":
     return next(f for f in setting_fields(BLENDER) if f.name == name)
 
 
-def _output_frame_changed(settings: "VortxSceneSettings", _context: bpy.types.Context) -> None:
-    from .frame import frame_changed
+def scene_value(f: "Field", value: Any) -> Any:
+    """A scene property's value as ReconSettings field `f` holds it."""
+    kind = value_type(f)
+    if kind is str:  # enum identifiers are the choices upper-cased ("CUDA" -> "cuda")
+        return str(value).lower()
+    if kind is bool:
+        return bool(value)
+    if kind is tuple:  # float32 properties: 0.04 reads as 0.03999999910593033
+        return tuple(round(float(v), 6) for v in value)
+    if kind is float:
+        return round(float(value), 6)
+    value = int(value)
+    return None if f.metadata["unset"] is not None and value == f.metadata["unset"] else value
 
+
+def write_scene_value(settings: Any, f: "Field", value: Any) -> None:
+    """ReconSettings field `f`'s `value` -> its scene property (None -> the `unset` value, text -> the enum id)."""
+    shown = value
+    if value is None:
+        shown = f.metadata["unset"]
+    elif value_type(f) is str:
+        shown = value.upper()
+    try:
+        setattr(settings, blender_name(f), shown)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{f.name} = {value!r}: {error}") from None
+
+
+def _output_frame_changed(settings: "VortxSceneSettings", _context: bpy.types.Context) -> None:
     frame_changed(settings.id_data)
 
 

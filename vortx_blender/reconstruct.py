@@ -14,6 +14,8 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable, Optional
 
+import bpy
+
 from ..engine.capture import Capture
 from ..engine.errors import PoseError, VortxError, WeightsError
 from ..engine.jobs import CancelToken, ProgressCallback
@@ -21,19 +23,16 @@ from ..engine.mesh_io import Mesh
 from ..engine.meshops import PieceStats, remove_small_pieces
 from ..engine import poses as engine_poses  # its refine_poses looked up at call time: tests stand in for it
 from ..engine.poses.prepare import SFM_NEVER, prepare_capture
-from ..engine.recon.settings import BLENDER, ReconSettings, setting_fields, value_type
+from ..engine.recon import plan_reconstruction
+from ..engine.recon.settings import BLENDER, ReconSettings, setting_fields
 from .cameras import posed_capture_from_scene
 from .capture import apply_prepared, scene_camera_height
 from .frame import show_frame
 from .jobs import JobFunction
-from .properties import blender_name
+from .properties import blender_name, scene_value, write_scene_value
 from .result import Provenance
 
 if TYPE_CHECKING:
-    from dataclasses import Field
-
-    import bpy
-
     from ..engine.recon import ReconResult, Tile
 
 # engine.recon.network.RANDOM, spelled out because that module imports torch (the tests check they agree).
@@ -88,8 +87,6 @@ def weights_from_scene(settings: Any) -> Optional[str]:
         return RANDOM_WEIGHTS
     if source == "DEFAULT":
         return None
-    import bpy
-
     if not settings.weights_path:
         raise WeightsError("Weights is set to File but no weights file is chosen: pick a .safetensors file in Reconstruction > Model")
     path = Path(bpy.path.abspath(settings.weights_path))
@@ -119,21 +116,6 @@ def recon_settings_from_scene(settings: Any, with_weights: bool = True) -> Recon
     return recon
 
 
-def scene_value(f: "Field", value: Any) -> Any:
-    """A scene property's value as ReconSettings field `f` holds it."""
-    kind = value_type(f)
-    if kind is str:  # enum identifiers are the choices upper-cased ("CUDA" -> "cuda")
-        return str(value).lower()
-    if kind is bool:
-        return bool(value)
-    if kind is tuple:  # float32 properties: 0.04 reads as 0.03999999910593033
-        return tuple(round(float(v), 6) for v in value)
-    if kind is float:
-        return round(float(value), 6)
-    value = int(value)
-    return None if f.metadata["unset"] is not None and value == f.metadata["unset"] else value
-
-
 def write_scene_settings(settings: Any, recon: ReconSettings) -> None:
     """ReconSettings -> scene.vortx for every field offered to Blender (the batch script's flags).
 
@@ -144,17 +126,6 @@ def write_scene_settings(settings: Any, recon: ReconSettings) -> None:
         write_scene_value(settings, f, getattr(recon, f.name))
 
 
-def write_scene_value(settings: Any, f: "Field", value: Any) -> None:
-    """ReconSettings field `f`'s `value` -> its scene property (None -> the `unset` value, text -> the enum id)."""
-    shown = value
-    if value is None:
-        shown = f.metadata["unset"]
-    elif value_type(f) is str:
-        shown = value.upper()
-    try:
-        setattr(settings, blender_name(f), shown)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{f.name} = {value!r}: {error}") from None
 
 
 def scene_capture(scene: "bpy.types.Scene") -> Capture:
@@ -204,7 +175,7 @@ def reconstruct_job(request: ReconRequest, on_tiles: Callable[[list["Tile"]], No
     then follow the engine's in-place state changes), reconstruct, drop small pieces."""
 
     def run(progress: ProgressCallback, cancel: CancelToken) -> ReconOutcome:
-        from ..engine.recon import driver, plan_reconstruction
+        from ..engine.recon import driver  # defers torch: the extension registers and draws without it
 
         if request.settings.weights is None:
             _check_default_weights()
@@ -237,8 +208,6 @@ def plan_tiles_job(capture: Capture, settings: ReconSettings) -> JobFunction:
     numpy only, so the tile overlay can be previewed before reconstructing."""
 
     def run(progress: ProgressCallback, cancel: CancelToken) -> list["Tile"]:
-        from ..engine.recon import plan_reconstruction
-
         return plan_reconstruction(capture, settings, progress, cancel).tiles
 
     return run
@@ -246,7 +215,7 @@ def plan_tiles_job(capture: Capture, settings: ReconSettings) -> JobFunction:
 
 def _check_default_weights() -> None:
     # The engine's own message speaks CLI (--weights); this one names the panel settings.
-    from ..engine.model import weights
+    from ..engine.model import weights  # defers torch: the extension registers and draws without it
 
     path = Path(weights.DEFAULT_WEIGHTS)  # read at call time: the one place that defines it
     if not path.is_file():

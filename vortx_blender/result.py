@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import datetime
 import json
+import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Optional
@@ -35,11 +36,11 @@ from typing import Any, Optional
 import bpy
 import numpy as np
 
+from .. import engine
 from ..engine.colour_space import linear_to_srgb, srgb_to_linear  # noqa: F401 (re-exported)
 from ..engine.mesh_io import Mesh
 from ..engine.observation import EVIDENCE_ATTRIBUTES, observation_colours
-from .cameras import ensure_tagged_collection, find_tagged_collection
-from .frame import place_new
+from .scene_objects import ensure_tagged_collection, find_tagged_collection, place_new
 
 RESULT_COLLECTION_NAME = "VoRTX Result"
 COLLECTION_TAG = "vortx_result_collection"
@@ -82,8 +83,6 @@ class Provenance:
     stats: dict[str, Any]  # a JSON-friendly summary of the run
 
     def write(self, obj: bpy.types.Object) -> None:
-        from .. import engine
-
         obj[RESULT_TAG] = True
         obj[PROP_CAPTURE] = self.capture_path
         obj[PROP_SETTINGS] = json.dumps(self.settings, sort_keys=True)
@@ -96,8 +95,6 @@ class Provenance:
 
 def extension_version() -> str:
     """The `version` of blender_manifest.toml in the extension root (the installed package's version)."""
-    import tomllib
-
     manifest = Path(__file__).resolve().parents[1] / "blender_manifest.toml"
     try:
         with open(manifest, "rb") as f:

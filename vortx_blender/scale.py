@@ -16,21 +16,20 @@ source and the capture is metric, so the next reconstruction uses the cameras as
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
+import bmesh
+import bpy
 import numpy as np
+from mathutils import Matrix
 
 from ..engine.errors import PoseError
 from ..engine.poses import rescale_capture, scale_from_known_distance
 from ..engine.poses.align import Similarity
 from ..engine.poses.prepare import PreparedCapture
 from .cameras import PROP_POSE, is_capture_camera, move_capture_cameras, posed_capture_from_scene
-from .frame import engine_matrix, find_frame_empty, set_engine_matrix, show_frame
+from .frame import show_frame
 from .point_cloud import find_point_cloud, scale_point_cloud
 from .result import result_objects
-
-if TYPE_CHECKING:
-    import bpy
+from .scene_objects import engine_matrix, find_frame_empty, set_engine_matrix
 
 KNOWN_DISTANCE = "known distance"  # the scale source Set Scale leaves (engine.poses.gravity's name)
 
@@ -69,8 +68,6 @@ def picked_points(context: "bpy.types.Context") -> list[PickedPoint]:
 
 
 def _selected_vertices(context: "bpy.types.Context") -> list[PickedPoint]:
-    import bmesh
-
     points = []
     for obj in context.objects_in_mode_unique_data:
         if obj.type != "MESH":
@@ -127,9 +124,6 @@ def set_scale(scene: "bpy.types.Scene", picked: list[PickedPoint], metres: float
 def _scale_about_origin(scene: "bpy.types.Scene", obj: "bpy.types.Object", factor: float) -> None:
     """Engine-world positions x -> factor * x, keeping the object's rotation and unit scale: the mesh
     data scales by `factor` and the object's location with it (uniform scaling commutes with rotation)."""
-    import bmesh
-    from mathutils import Matrix
-
     mesh = obj.data
     if mesh.is_editmode:
         bm = bmesh.from_edit_mesh(mesh)

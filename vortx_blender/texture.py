@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Optional
 
+import bpy
 import numpy as np
 
 from ..engine.capture import Capture
@@ -34,14 +35,14 @@ from ..engine.errors import PoseError, VortxError
 from ..engine.jobs import CancelToken, ProgressCallback
 from ..engine.mesh_io import Mesh
 from ..engine.texture.options import TextureOptions
+from ..engine.texture.presets import preset
+from . import result as results
 from .cameras import posed_capture_from_scene
-from .frame import engine_matrix
 from .jobs import JobFunction
 from .reconstruct import recon_settings_from_scene
+from .scene_objects import engine_matrix
 
 if TYPE_CHECKING:
-    import bpy
-
     from ..engine.texture.textured_mesh import TexturedMesh
 
 UV_MAP = "UVMap"
@@ -75,9 +76,7 @@ class BakeOutcome:
 def request_from_scene(scene: "bpy.types.Scene", obj: Optional["bpy.types.Object"],
                        depsgraph: "bpy.types.Depsgraph") -> BakeRequest:
     """Everything a bake of `obj` needs (main thread). Raises VortxError saying what to do."""
-    from .result import RESULT_TAG, mesh_arrays
-
-    if obj is None or obj.type != "MESH" or not obj.get(RESULT_TAG):
+    if obj is None or obj.type != "MESH" or not obj.get(results.RESULT_TAG):
         raise VortxError("No VoRTX result to bake: Reconstruct first, or select the result mesh")
     if obj.mode != "OBJECT":
         raise VortxError(f"'{obj.name}' is in {obj.mode.replace('_', ' ').title()} Mode: switch to Object Mode to "
@@ -102,12 +101,12 @@ def request_from_scene(scene: "bpy.types.Scene", obj: Optional["bpy.types.Object
     evaluated = obj.evaluated_get(depsgraph)
     data = evaluated.to_mesh()
     try:
-        local = mesh_arrays(data, triangulate=True)  # modifiers applied, as the viewport shows the result
+        local = results.mesh_arrays(data, triangulate=True)  # modifiers applied, as the viewport shows the result
     finally:
         evaluated.to_mesh_clear()
     if len(local.faces) == 0:
         raise VortxError(f"'{obj.name}' has no faces to bake a texture onto")
-    matrix = engine_matrix(obj, scene)  # the cameras' world, whichever coordinates the scene shows (frame.py)
+    matrix = engine_matrix(obj, scene)  # the cameras' world, whichever coordinates the scene shows (scene_objects.py)
     if abs(np.linalg.det(matrix[:3, :3])) < 1e-12:
         raise VortxError(f"'{obj.name}' is scaled to nothing (its scale has a zero): reset its scale to bake")
     world = Mesh(vertices=transform(local.vertices, matrix), faces=local.faces, colors=local.colors,
@@ -125,6 +124,7 @@ def bake_texture_job(request: BakeRequest) -> JobFunction:
     """A bpy-free job function: the VR preset and the bake on the request's mesh, the texture as PNG."""
 
     def run(progress: ProgressCallback, cancel: CancelToken) -> BakeOutcome:
+        # defers cv2 (the texture engine reads and writes images with it): the extension registers without OpenCV
         from ..engine.texture.files import encode_png
         from ..engine.texture.views import views_from_capture
         from ..engine.texture.vr import textured_result
@@ -142,8 +142,6 @@ def bake_texture_job(request: BakeRequest) -> JobFunction:
 def texture_image(name: str, png: bytes, size: tuple[int, int]) -> "bpy.types.Image":
     """A new image packed into the .blend from PNG bytes (sRGB), so the file carries its texture.
     size: (width, height) of the PNG."""
-    import bpy
-
     image = bpy.data.images.new(name, size[0], size[1], alpha=False)
     try:
         image.pack(data=png, data_len=len(png))
@@ -161,12 +159,8 @@ def texture_image(name: str, png: bytes, size: tuple[int, int]) -> "bpy.types.Im
 def textured_mesh_data(name: str, textured: "TexturedMesh", matrix_world: np.ndarray) -> "bpy.types.Mesh":
     """A new Mesh datablock (unlinked) of `textured` in the local coordinates of an object at
     `matrix_world`: vertex colours, the confidence layer and the UV map "UVMap" (one UV per corner)."""
-    import bpy
-
-    from .result import build_mesh
-
     local = transform(textured.vertices, np.linalg.inv(matrix_world))
-    mesh = build_mesh(name, local, textured.faces, textured.colors, textured.attributes)
+    mesh = results.build_mesh(name, local, textured.faces, textured.colors, textured.attributes)
     try:
         faces = np.asarray(textured.faces, np.int64)
         uvs = np.asarray(textured.uvs, np.float32)
@@ -187,10 +181,6 @@ def apply_bake(obj: "bpy.types.Object", request: BakeRequest, outcome: BakeOutco
     previous bake's material and image, go when nothing else uses them. Until the swap nothing of
     the scene is changed, and whatever was made is removed when building fails.
     """
-    import bpy
-
-    from . import result as results
-
     if obj.mode != "OBJECT":  # Edit Mode keeps its own copy of the mesh: a swap would not take
         raise VortxError(f"'{obj.name}' was put in {obj.mode.replace('_', ' ').title()} Mode while the texture "
                          "was baking; nothing was changed: switch to Object Mode and bake again")
@@ -233,10 +223,8 @@ def apply_bake(obj: "bpy.types.Object", request: BakeRequest, outcome: BakeOutco
 
 def recorded_voxel_size(obj: "bpy.types.Object") -> Optional[float]:
     """The voxel size the result was reconstructed with (its settings property), or None."""
-    from .result import PROP_SETTINGS
-
     try:
-        value = json.loads(obj.get(PROP_SETTINGS, "{}")).get("voxel_size")
+        value = json.loads(obj.get(results.PROP_SETTINGS, "{}")).get("voxel_size")
     except (json.JSONDecodeError, AttributeError):
         return None
     return float(value) if isinstance(value, (int, float)) and value > 0 else None
@@ -265,8 +253,6 @@ def headset_budget_text(scene: "bpy.types.Scene") -> str:
     """One line for the Result panel: what Bake Texture and Export will make under the scene's Headset
     preset (its budget applied to Texture Size and Face Budget), e.g. "Standalone Headset: 2048 px,
     100k faces, KTX2 ETC1S, Draco"."""
-    from ..engine.texture.presets import preset
-
     try:
         options = recon_settings_from_scene(scene.vortx, with_weights=False).texture_options
     except VortxError as error:

@@ -22,9 +22,12 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Optional, Sequence
 
 import bpy
+import gpu
 import numpy as np
+from gpu_extras.batch import batch_for_shader
 
-from .frame import find_frame_empty, place_new
+from ..engine.recon import tile_grid
+from .scene_objects import find_frame_empty, place_new
 
 if TYPE_CHECKING:
     from ..engine.recon import Tile
@@ -78,8 +81,6 @@ class TileOverlay:
 
 def overlay_from_tiles(scene_uid: int, tiles: Sequence["Tile"]) -> TileOverlay:
     """Overlay data for `tiles` from the engine's tile_grid (numpy only: safe on the worker thread)."""
-    from ..engine.recon import tile_grid
-
     corners, edges, _ = tile_grid(list(tiles))
     return TileOverlay(scene_uid, list(tiles), corners.astype(np.float32), edges.astype(np.int32))
 
@@ -185,14 +186,11 @@ def _draw() -> None:
         return
     if not scene.vortx.show_tiles:  # another scene's setting may have registered the handler
         return
-    # gpu is imported and the shader fetched here, lazily: this is the only place a GPU context exists.
-    import gpu
-    from gpu_extras.batch import batch_for_shader
-
+    # The shader is fetched here, lazily: this is the only place a GPU context exists.
     # POLYLINE_UNIFORM_COLOR draws wide lines on every backend (UNIFORM_COLOR's line width is
     # ignored on Metal/Vulkan).
     shader = gpu.shader.from_builtin("POLYLINE_UNIFORM_COLOR")
-    frame = find_frame_empty(scene)  # tiles are in the engine's world: shown where the scene shows it (frame.py)
+    frame = find_frame_empty(scene)  # tiles are in the engine's world: shown where the scene shows it (scene_objects.py)
     gpu.matrix.push()
     if frame is not None:
         gpu.matrix.multiply_matrix(frame.matrix_world)

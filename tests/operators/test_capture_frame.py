@@ -154,7 +154,7 @@ def test_capture_coordinates_put_the_cameras_and_points_where_the_capture_has_th
     # Coordinates back to World: the world as before the choice existed (no empty, no parents) ...
     settings.output_frame = "WORLD"
     bpy.context.view_layer.update()
-    assert blender.vortx_blender.frame.find_frame_empty(scene) is None
+    assert blender.vortx_blender.scene_objects.find_frame_empty(scene) is None
     assert all(obj.parent is None for obj in bpy.data.objects)
     for matrix, frame in zip(_camera_matrices(blender, scene), posed.frames):
         np.testing.assert_allclose(matrix, blender.vortx_blender.cameras.blender_matrix_from_pose(frame.pose), atol=1e-5)
@@ -234,7 +234,7 @@ def test_result_lies_in_the_capture_coordinates(blender, runs) -> None:
     # The same reconstruction as in World, shown through the recorded world -> capture similarity.
     expected = runs.to_capture.apply_points(runs.world_vertices)
     np.testing.assert_allclose(runs.vertices, expected, atol=1e-4)
-    assert runs.parent == blender.vortx_blender.frame.FRAME_EMPTY_NAME
+    assert runs.parent == blender.vortx_blender.scene_objects.FRAME_EMPTY_NAME
     # The result records its coordinates: in its settings and as the engine's frame record.
     assert runs.settings["frame"] == "capture"
     assert runs.record["frame"] == "capture"
@@ -313,7 +313,7 @@ def test_scripts_without_the_option_use_the_scene_setting(blender, given, with_p
     bpy.ops.wm.read_homefile(use_empty=True)
     scene = bpy.context.scene
     scene.vortx.output_frame = "CAPTURE"  # nothing imported yet: the choice waits for the import
-    assert blender.vortx_blender.frame.find_frame_empty(scene) is None
+    assert blender.vortx_blender.scene_objects.find_frame_empty(scene) is None
     assert bpy.ops.vortx.import_capture(filepath=str(given.path)) == {"FINISHED"}
     bpy.context.view_layer.update()
     _assert_on_given_poses(blender, scene, given)

@@ -117,7 +117,7 @@ def test_reimport_replaces_only_our_cameras(blender, empty_scene, tmp_path: Path
     K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
 
     cameras_module.build_capture_cameras(empty_scene, _capture(blender, tmp_path, 640, 480, K, _orbit_poses(5, seed=4)))
-    collection = cameras_module.find_capture_collection(empty_scene)
+    collection = blender.vortx_blender.scene_objects.find_capture_collection(empty_scene)
     guest = bpy.data.objects.new("User Mesh", bpy.data.meshes.new("User Mesh"))
     collection.objects.link(guest)
     collection.name = "My renamed capture"  # found by its tag, not its name
@@ -125,7 +125,7 @@ def test_reimport_replaces_only_our_cameras(blender, empty_scene, tmp_path: Path
     second = _capture(blender, tmp_path, 640, 480, K, _orbit_poses(3, seed=5))
     cameras, _ = cameras_module.build_capture_cameras(empty_scene, second)
     assert len(cameras) == 3
-    assert cameras_module.find_capture_collection(empty_scene) == collection
+    assert blender.vortx_blender.scene_objects.find_capture_collection(empty_scene) == collection
     assert sorted(o.name for o in collection.objects) == sorted([c.name for c in cameras] + ["User Mesh"])
     assert not any(".0" in o.name for o in cameras), "old cameras were left behind"
     assert len([c for c in bpy.data.cameras if c.users == 0]) == 0, "camera data of removed cameras leaked"

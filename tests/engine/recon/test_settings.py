@@ -120,7 +120,7 @@ def test_blender_properties_are_the_blender_fields(blender, empty_scene) -> None
             assert prop.hard_min == pytest.approx(f.metadata["min"]), f.name
         if f.metadata["max"] is not None and prop.type in ("INT", "FLOAT"):
             assert prop.hard_max == pytest.approx(f.metadata["max"]), f.name
-        assert recon.scene_value(f, getattr(empty_scene.vortx, prop.identifier)) == field_default(f), f.name
+        assert props.scene_value(f, getattr(empty_scene.vortx, prop.identifier)) == field_default(f), f.name
     # Defaults in the panel are the engine's defaults, through the generic mapping.
     assert recon.recon_settings_from_scene(empty_scene.vortx).to_dict() == ReconSettings().to_dict()
 
