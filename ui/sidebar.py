@@ -24,6 +24,9 @@ from __future__ import annotations
 
 from typing import Any
 
+import blf
+import bpy
+
 SIDEBAR_PX = 291  # the sidebar region's default width
 CONTENT_PX = 234  # a panel's content at that width
 MARGIN_PX = SIDEBAR_PX - CONTENT_PX  # tab strip and panel margins
@@ -51,8 +54,6 @@ BOX_PAD_PX = 12
 
 def text_width(text: str) -> float:
     """`text`'s width in pixels as the measured window draws it in a panel (the UI font, 11 pt at its scale)."""
-    import blf
-
     blf.size(0, FONT_POINTS * WINDOW_SCALE)
     return blf.dimensions(0, text)[0]
 
@@ -64,8 +65,6 @@ def content_px(context: Any) -> float:
     width = getattr(region, "width", 0) or 0
     if width <= MARGIN_PX:  # no region (headless) or collapsed
         return CONTENT_PX
-    import bpy
-
     scale = bpy.context.preferences.system.ui_scale or 1.0  # the resolution scale times the display's DPI
     return width / scale * WINDOW_SCALE - MARGIN_PX
 

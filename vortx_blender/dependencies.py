@@ -24,8 +24,8 @@ is relaxed to "the newest release that fits this Python and Blender's numpy" (`f
 `parse_resolution_failure`, `relax`); a package that no release fits is left out and said so in
 plain words (`NotInstalled`), and the rest is installed.
 
-This module does not import bpy at module level and is runnable as a script, which is the manual
-install command shown when Blender's online access is off:
+This module does not import bpy (preferences.py asks Blender for the folder) and is runnable as a
+script, which is the manual install command shown when Blender's online access is off:
     "<blender python>" ".../vortx_blender/dependencies.py" --target "<site-packages folder>"
 """
 
@@ -266,13 +266,6 @@ def remove_from_sys_path(folder: Path) -> None:
     entry = str(folder)
     while entry in sys.path:
         sys.path.remove(entry)
-
-
-def site_packages_dir(package: str) -> Path:
-    """The install folder in the extension's user directory (created)."""
-    import bpy
-
-    return Path(bpy.utils.extension_path_user(package, path=SITE_PACKAGES, create=True))
 
 
 # ------------------------------------------------------------------------------------------ commands

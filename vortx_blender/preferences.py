@@ -7,6 +7,8 @@ installation rather than to a file -- the Python packages -- lives here. Drawing
 No `from __future__ import annotations` here: bpy reads operator property annotations as objects.
 """
 
+import sys
+import textwrap
 from pathlib import Path
 from typing import Any, Optional, Sequence
 
@@ -24,7 +26,8 @@ ADDON_PACKAGE = __package__.rpartition(".")[0]
 
 
 def install_folder() -> Path:
-    return dependencies.site_packages_dir(ADDON_PACKAGE)
+    """The install folder in the extension's user directory (created)."""
+    return Path(bpy.utils.extension_path_user(ADDON_PACKAGE, path=dependencies.SITE_PACKAGES, create=True))
 
 
 def offline_text(statuses: Sequence[ModuleStatus], folder: Path) -> str:
@@ -34,15 +37,11 @@ def offline_text(statuses: Sequence[ModuleStatus], folder: Path) -> str:
 
 
 def _python() -> str:
-    import sys
-
     return sys.executable
 
 
 def _wrapped_labels(layout: Any, text: str, width: int = 90) -> None:
     # Labels do not wrap; long messages (paths, commands) are split over several.
-    import textwrap
-
     col = layout.column(align=True)
     for line in textwrap.wrap(text, width, break_long_words=True, break_on_hyphens=False):
         col.label(text=line)
@@ -56,8 +55,6 @@ def install_what(pins_apply: Optional[bool] = None) -> str:
 
 
 def _python_version() -> tuple:
-    import sys
-
     return tuple(sys.version_info[:2])
 
 
@@ -120,8 +117,6 @@ class VORTX_OT_install_dependencies(JobOperatorMixin, bpy.types.Operator):
         return dependencies.install_job(_python(), install_folder(), todo)
 
     def apply_result(self, context: bpy.types.Context, scene: bpy.types.Scene, result: InstallResult) -> set[str]:
-        import sys
-
         dependencies.add_to_sys_path(result.target)
         statuses = dependencies.status(refresh=True)
         # A module imported before the install keeps its old version until Blender restarts.
