@@ -56,7 +56,7 @@ config_changes={'sparse_norm_statistics': 'scene'})"
 
 # 5. Real photos (no ground truth): poses and reconstruction of the fox capture, and the picture.
 $PY -m engine poses ../shared/data/fox/images --out /tmp/fox
-$PY -m engine reconstruct /tmp/fox --out /tmp/fox.ply
+$PY -m engine reconstruct /tmp/fox --method vortx --out /tmp/fox.ply
 $PY scripts/capture_view_picture.py /tmp/fox /tmp/fox.ply --frame 0018 --out docs/fox_reconstruction.png
 #    The same with the running averages, for MODEL.md's comparison (not shipped).
-$PY -m engine reconstruct /tmp/fox --out /tmp/fox_running.ply --weights runs/vortx_default/weights.safetensors
+$PY -m engine reconstruct /tmp/fox --method vortx --out /tmp/fox_running.ply --weights runs/vortx_default/weights.safetensors
