@@ -59,18 +59,15 @@ from engine.batch.runner import run_jobs  # noqa: E402
 
 
 def main(argv: Optional[Sequence[str]] = None) -> int:
-    args = parse_arguments(script_arguments(sys.argv if argv is None else argv))
+    arguments = script_arguments(sys.argv if argv is None else argv)
+    args = parse_arguments(arguments)
     if args.single and not args.captures[0].exists():  # no need to start the extension for that
         return run_jobs(args, plan_jobs(args, args.captures), None)
     try:
         import bpy  # noqa: F401  (defers bpy: Blender's own, or the bpy module under plain python)
 
         with vortx_extension() as addon:
-            batch = importlib.import_module(f"{addon.__name__}.vortx_blender.batch")
-            jobs = plan_jobs(args, batch.captures_to_run(args))
-            if args.ray is not None:
-                return batch.run_batch_on_ray(args, jobs, Path(__file__))
-            return batch.run_batch(args, jobs)
+            return importlib.import_module(f"{addon.__name__}.vortx_blender.batch").run_command_line(arguments, Path(__file__))
     except ExtensionLoadError as error:
         return run_jobs(args, plan_jobs(args, args.captures), None, load_error=str(error))
 

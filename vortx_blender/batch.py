@@ -3,7 +3,9 @@ called exactly as a user clicks them (Import Capture, Estimate or Refine Poses, 
 Texture with --vr), then the .blend saved and the mesh exported; the report filled on the way.
 
 The command line, the output plan, the report and the loop over captures are Blender-free
-(engine/batch/); so is the Ray driver, which this module hands the captures to with --ray.
+(engine/batch/); so is the Ray driver, which this module hands the captures to with --ray. The
+command line is read here again with the extension's own engine (the script read it with the
+checkout's before loading the extension), so that the settings are the classes this engine checks.
 """
 
 from __future__ import annotations
@@ -17,12 +19,12 @@ import time
 from contextlib import redirect_stdout
 from functools import partial
 from pathlib import Path
-from typing import Any, Callable, Optional, TextIO
+from typing import Any, Callable, Optional, Sequence, TextIO
 
 import bpy
 
-from ..engine.batch.arguments import argument_parser
-from ..engine.batch.plan import CaptureJob, expand_captures
+from ..engine.batch.arguments import argument_parser, parse_arguments
+from ..engine.batch.plan import CaptureJob, expand_captures, plan_jobs
 from ..engine.batch.ray_cluster import run_on_ray
 from ..engine.batch.report import BatchError, CaptureReport, StepTimer, blank_report, print_progress
 from ..engine.batch.runner import run_jobs
@@ -227,6 +229,14 @@ def run_capture(args: argparse.Namespace, job: CaptureJob, report: CaptureReport
         partial_blend.unlink(missing_ok=True)
     report.blend = str(out)
     report.mesh["blend_bytes"] = out.stat().st_size
+
+
+def run_command_line(arguments: Sequence[str], script: Path) -> int:
+    """The batch of scripts/vortx_batch.py (`script`) in this Blender: its captures in turn, or with
+    --ray on the cluster; 1 when any failed, else 0."""
+    args = parse_arguments(arguments)
+    jobs = plan_jobs(args, captures_to_run(args))
+    return run_batch_on_ray(args, jobs, script) if args.ray is not None else run_batch(args, jobs)
 
 
 def captures_to_run(args: argparse.Namespace) -> list[Path]:

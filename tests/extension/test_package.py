@@ -75,7 +75,7 @@ def test_zip_holds_the_extension_and_not_the_dev_files(archive: Path) -> None:
                      "vortx_blender/dependencies.py", "vortx_blender/preferences.py", "operators/__init__.py",
                      "requirements.txt", "constraints.txt"):  # the package installer reads its pins from the last two
         assert required in names, required
-    assert not tops & {"tests", "scripts", "samples", "docs", "data", "runs", "configs", "out", "dist", ".venv", ".git", "Makefile"}, tops
+    assert not tops & {"tests", "scripts", "devtools", "samples", "docs", "data", "runs", "configs", "out", "dist", ".venv", ".git", "Makefile"}, tops
     assert not any(n.endswith(".pyc") or "__pycache__" in n for n in names)
     shipped_weights = sorted(p.relative_to(REPO).as_posix() for p in (REPO / "weights").glob("*") if p.is_file() and not p.name.startswith("."))
     assert all(w in names for w in shipped_weights), shipped_weights
@@ -88,13 +88,13 @@ def test_build_rules_ship_weights_and_drop_samples(tmp_path: Path) -> None:
     source.mkdir()
     shutil.copy(REPO / "blender_manifest.toml", source)
     files = ["__init__.py", "weights/vortx-default.safetensors", "weights/vortx-default.json", "samples/demo_room/images/0.jpg",
-             "scripts/demo.py", "tests/test_x.py", "engine/__init__.py", "requirements.txt", "docs/a.md"]
+             "scripts/demo.py", "devtools/demo/pipeline.py", "tests/test_x.py", "engine/__init__.py", "requirements.txt", "docs/a.md"]
     for name in files:
         (source / name).parent.mkdir(parents=True, exist_ok=True)
         (source / name).write_text("def register():\n    pass\n\n\ndef unregister():\n    pass\n" if name == "__init__.py" else "x")
     names = set(zipfile.ZipFile(build(source, tmp_path / "dist")).namelist())
     assert {"weights/vortx-default.safetensors", "weights/vortx-default.json", "engine/__init__.py", "requirements.txt"} <= names
-    assert not {n for n in names if n.split("/")[0] in ("samples", "scripts", "tests", "docs")}, names
+    assert not {n for n in names if n.split("/")[0] in ("samples", "scripts", "devtools", "tests", "docs")}, names
 
 
 # --- the installed copy runs the whole job ---------------------------------------------------------

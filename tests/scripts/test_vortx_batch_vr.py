@@ -19,8 +19,6 @@ from pathlib import Path
 import pytest
 
 from conftest import REPO
-from engine.batch.arguments import parse_arguments
-from engine.batch.plan import plan_jobs
 from fixtures_capture import intrinsics, ring_poses, write_scannet
 from fixtures_gltf import assert_valid_gltf
 from fixtures_texture import decode_png, glb_base_colour_png, read_glb
@@ -80,9 +78,8 @@ def test_a_failing_bake_fails_the_capture_at_the_texture_step(blender, scannet_c
 
     monkeypatch.setattr(vr, "textured_result", failing)
     out = tmp_path / "scene.blend"
-    args = parse_arguments([str(scannet_capture), "--out", str(out), *TINY, *VR])
     batch = importlib.import_module(f"{blender.__name__}.vortx_blender.batch")
-    assert batch.run_batch(args, plan_jobs(args, args.captures)) == 1
+    assert batch.run_command_line([str(scannet_capture), "--out", str(out), *TINY, *VR], BATCH) == 1
     report = json.loads((tmp_path / "scene.report.json").read_text())
     assert report["status"] == "failed" and report["failed_step"] == "texture"
     assert "the texture atlas could not be made" in report["error"]
@@ -102,9 +99,8 @@ def test_a_crash_in_the_atlas_worker_is_recorded_as_the_texture_step_failing(ble
     atlas = importlib.import_module(f"{blender.__name__}.engine.texture.atlas")
     monkeypatch.setattr(atlas, "xatlas_layout", fixtures_native.segfault)
     out = tmp_path / "scene.blend"
-    args = parse_arguments([str(scannet_capture), "--out", str(out), *TINY, *VR])
     batch = importlib.import_module(f"{blender.__name__}.vortx_blender.batch")
-    assert batch.run_batch(args, plan_jobs(args, args.captures)) == 1
+    assert batch.run_command_line([str(scannet_capture), "--out", str(out), *TINY, *VR], BATCH) == 1
     report = json.loads((tmp_path / "scene.report.json").read_text())
     assert report["status"] == "failed" and report["failed_step"] == "texture"
     assert "texture atlas (xatlas) crashed on each of 2 tries: its worker process was killed by SIGSEGV" in report["error"]

@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 
-from engine.batch.arguments import parse_arguments
 from fixtures_capture import write_photo_folder
 
 
@@ -51,12 +50,12 @@ def test_a_folder_of_captures_is_expanded_only_for_an_output_folder(batch, tmp_p
     for name in ("kitchen", "hall"):
         write_photo_folder(tmp_path / "rooms" / name, 3)
     rooms = str(tmp_path / "rooms")
-    assert [p.name for p in batch.captures_to_run(parse_arguments([rooms, "--out", str(tmp_path / "out")]))] == ["hall", "kitchen"]
-    assert batch.captures_to_run(parse_arguments([rooms, "--out", str(tmp_path / "one.blend")])) == [Path(rooms)]
+    assert [p.name for p in batch.captures_to_run(batch.parse_arguments([rooms, "--out", str(tmp_path / "out")]))] == ["hall", "kitchen"]
+    assert batch.captures_to_run(batch.parse_arguments([rooms, "--out", str(tmp_path / "one.blend")])) == [Path(rooms)]
 
 
 def test_a_gpu_asked_for_where_pytorch_sees_none_is_refused_with_what_to_do(batch, empty_scene, monkeypatch) -> None:
-    args = parse_arguments(["cap", "--out", "a.blend", "--device", "cuda"])
+    args = batch.parse_arguments(["cap", "--out", "a.blend", "--device", "cuda"])
 
     def no_cuda(settings, recon) -> None:
         raise ValueError("enum 'CUDA' not found")
