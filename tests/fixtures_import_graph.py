@@ -54,9 +54,26 @@ def _targets(node: ast.Import | ast.ImportFrom, importer: str) -> tuple[set[str]
         names = set(submodules)
         if len(submodules) < len(node.names):
             names.add(target)
+            lazy = lazy_names(target)
+            for alias in node.names:  # a name the package's __getattr__ imports on first use
+                names |= lazy.get(alias.name, set())
     project = {n for n in names if n in MODULES and n != importer}
     externals = {n.split(".")[0] for n in names if n.split(".")[0] not in PACKAGES and n != "vortx"}
     return project, externals
+
+
+def lazy_names(package: str) -> dict[str, set[str]]:
+    """name -> the modules a package's module-level `__getattr__` imports to give that name (PEP 562)."""
+    if package not in MODULES:
+        return {}
+    lazy: dict[str, set[str]] = {}
+    for node in ast.parse(MODULES[package].read_text(encoding="utf-8")).body:
+        if isinstance(node, ast.FunctionDef) and node.name == "__getattr__":
+            for inner in ast.walk(node):
+                if isinstance(inner, ast.ImportFrom) and inner.level == 1 and inner.module:
+                    for alias in inner.names:
+                        lazy.setdefault(alias.asname or alias.name, set()).add(f"{package}.{inner.module}")
+    return lazy
 
 
 def _is_type_checking(test: ast.expr) -> bool:

@@ -46,7 +46,7 @@ import numpy as np
 from ..capture.model import Capture
 from ..errors import Cancelled, VortxError
 from ..jobs import CancelToken, ProgressCallback, check
-from ..stereo import StereoOptions, estimate_depth_maps, stereo_references
+from ..stereo.options import StereoOptions
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .floor import GRAVITY_MIN_INLIERS, FloorPlane, find_floor_plane
 
@@ -227,6 +227,8 @@ def _dense_points(
     capture: Capture, points: Optional[np.ndarray], progress: Optional[ProgressCallback], cancel: Optional[CancelToken]
 ) -> tuple[np.ndarray, str]:
     """(P, 3) world points from low-resolution stereo depth of a few keyframes, and a note when there are none."""
+    # defers torch and cv2 (depth_maps loads them): Blender imports this module before they are installed
+    from ..stereo.depth_maps import estimate_depth_maps, stereo_references
 
     posed = [f for f in capture.frames if f.pose is not None]
     poses = np.stack([f.pose for f in posed])

@@ -15,7 +15,9 @@ import torch
 
 from ..capture import Capture
 from ..jobs import CancelToken, ProgressCallback, check, report
-from ..stereo import StereoOptions, estimate_depth_maps, fuse_depth_maps, stereo_references
+from ..stereo.depth_maps import estimate_depth_maps, stereo_references
+from ..stereo.fused_tsdf import fuse_depth_maps
+from ..stereo.options import StereoOptions
 from ..stereo.depth_maps import DepthMap
 from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS, drop_unsupported_pieces, fuse_stereo_evidence
 from ..stereo.vertex_evidence import attach_evidence

@@ -25,7 +25,7 @@ from ..errors import VortxError
 from ..recon.scene_bounds import scene_bounds
 from ..recon.settings import ReconSettings
 from ..recon.stereo_fusion import stereo_options
-from ..stereo import estimate_depth_maps
+from ..stereo.depth_maps import estimate_depth_maps
 
 STEREO_FILE = "stereo_depth.npz"
 FORMAT_VERSION = 2

@@ -13,7 +13,7 @@
 from __future__ import annotations
 
 import re
-from fixtures_import_graph import GRAPH, MODULES, SITES, ImportSite, import_cycles, loaded_at_import
+from fixtures_import_graph import GRAPH, MODULES, SITES, ImportSite, lazy_names, import_cycles, loaded_at_import
 
 # Modules worth deferring: heavy to load (torch, pycolmap, cv2, ...) or present only in some
 # processes (bpy and its companions inside Blender, ray on a cluster, pytest in tests).
@@ -35,6 +35,8 @@ def test_the_reader_sees_lazy_relative_and_blender_side_imports():
     assert import_cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [frozenset("abc")]
     modules, externals = loaded_at_import("engine.recon.driver")
     assert "torch" in externals and "engine.recon" in modules  # parent packages run first
+    # `from engine.recon import reconstruct` runs the package's __getattr__, which imports the driver (PEP 562)
+    assert lazy_names("engine.recon") == {"reconstruct": {"engine.recon.driver"}}
 
 
 def test_no_import_cycle_between_files():

@@ -21,7 +21,7 @@ from engine.recon.plan import plan_reconstruction
 from engine.recon.settings import ReconSettings
 from engine.recon.synthetic import make_synthetic_capture, render_box_room
 from engine.recon.stereo_fusion import run_stereo_fusion
-from engine.stereo import DepthMap
+from engine.stereo.depth_maps import DepthMap
 
 ROOM = (3.0, 3.0, 2.5)
 VOXEL = 0.08

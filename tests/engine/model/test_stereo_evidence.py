@@ -16,7 +16,8 @@ from engine.model.outputs import VortxBatch, tsdf_from_logits
 from engine.model.outputs import StereoEvidence
 from engine.model.stereo_evidence import MAX_ADDED_BLOCK_SHARE, FineFusion, cap_added_blocks, fused_tsdf, view_evidence
 from engine.model.vortx import VortxNet
-from engine.stereo import DepthMap, fuse_depth_maps
+from engine.stereo.depth_maps import DepthMap
+from engine.stereo.fused_tsdf import fuse_depth_maps
 from engine.stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
 
 REPO = Path(__file__).resolve().parents[3]

@@ -7,7 +7,8 @@ import numpy as np
 
 from engine.geometry.cameras import look_at
 from engine.recon.mesh import extract_mesh
-from engine.stereo import DepthMap, fuse_depth_maps
+from engine.stereo.depth_maps import DepthMap
+from engine.stereo.fused_tsdf import fuse_depth_maps
 from engine.stereo.fused_tsdf import drop_unsupported_pieces, fuse_stereo_evidence
 
 VOXEL = 0.04

@@ -14,7 +14,9 @@ from engine.capture.model import Frame
 from engine.geometry.cameras import look_at
 from engine.geometry.depth_render import render_depth
 from engine.mesh_io import read_ply
-from engine.stereo import StereoOptions, estimate_depth_maps, select_sources
+from engine.stereo.depth_maps import estimate_depth_maps
+from engine.stereo.options import StereoOptions
+from engine.stereo.source_views import select_sources
 from engine.stereo.sweep import parabola_offset, sweep_depth
 
 REPO = Path(__file__).resolve().parents[3]
