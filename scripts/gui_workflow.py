@@ -9,8 +9,9 @@ $TRIXIE_ROOT or ~/trixie-root). As a user would:
    `blender --command extension install-file -r user_default -e <zip>`;
 2. the engine's packages are installed, if missing, by the add-on's own Install Missing Packages
    (vortx_blender/dependencies.py, which picks versions that fit that Python and its numpy);
-3. scripts/gui_workflow_blender.py drives the workflow in the window under Xvfb and writes
-   report.json and the screenshots; with --shots they are copied there (the README's pictures).
+3. scripts/gui_workflow_blender.py (with devtools/gui_workflow/, copied into the root beside it)
+   drives the workflow in the window under Xvfb and writes report.json and the screenshots; with
+   --shots they are copied there (the README's pictures).
 
 tests/extension/test_gui_workflow.py runs this when such a root is present. The chroot gets a clean
 environment (env -i): the host's proxy certificate settings are the root's own /etc/pip.conf.
@@ -57,6 +58,18 @@ def default_root() -> Path:
     return Path(os.environ.get("TRIXIE_ROOT") or Path.home() / "trixie-root")
 
 
+def copy_driver(folder: Path) -> Path:
+    """The driver script and the code it runs (devtools/gui_workflow/) into `folder`, laid out as in the
+    checkout (the driver puts its folder's parent on sys.path); returns the driver's path in `folder`."""
+    driver = DRIVER.relative_to(CHECKOUT)
+    (folder / driver).parent.mkdir(parents=True, exist_ok=True)
+    shutil.copy(DRIVER, folder / driver)
+    shutil.copytree(CHECKOUT / "devtools" / "gui_workflow", folder / "devtools" / "gui_workflow",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copy(CHECKOUT / "devtools" / "__init__.py", folder / "devtools" / "__init__.py")
+    return driver
+
+
 def check_root(root: Path) -> None:
     """GuiUnavailable naming what is missing for a GUI run in `root`."""
     needed = ("usr/bin/blender", "usr/bin/xvfb-run", "usr/bin/import", "usr/bin/xdotool")
@@ -88,7 +101,7 @@ def run_workflow(root: Path, photos: Path = DEFAULT_PHOTOS, shots: Optional[Path
     try:
         archive = build(CHECKOUT, work_in_root / "dist")
         shutil.copytree(photos, work_in_root / "photos")
-        shutil.copy(DRIVER, work_in_root / DRIVER.name)
+        driver = copy_driver(work_in_root)
         (work_in_root / "install_packages.py").write_text(INSTALL_PACKAGES)
         zip_inside = inside / "dist" / archive.name
         installed = chroot(root, ["blender", "--command", "extension", "install-file", "-r", "user_default", "-e", str(zip_inside)], 300, log)
@@ -100,7 +113,7 @@ def run_workflow(root: Path, photos: Path = DEFAULT_PHOTOS, shots: Optional[Path
         gui = chroot(root, [
             "xvfb-run", "-a", "-s", f"-screen 0 {SCREEN}",
             "blender", "--window-geometry", "0", "0", *SCREEN.split("x")[:2], "--no-window-focus",
-            "--python", str(inside / DRIVER.name), "--", "--photos", str(inside / "photos"), "--out", str(inside / "out"),
+            "--python", str(inside / driver), "--", "--photos", str(inside / "photos"), "--out", str(inside / "out"),
         ], timeout, log)
         report_file = work_in_root / "out" / "report.json"
         if not report_file.is_file():

@@ -85,3 +85,20 @@ def _sidebar_module():
 def test_a_missing_root_is_named_with_what_to_do(tmp_path: Path) -> None:
     with pytest.raises(gui_workflow.GuiUnavailable, match=r"usr/bin/blender.*gui_blender_setup\.sh"):
         gui_workflow.check_root(tmp_path)
+
+
+def test_the_driver_travels_with_the_code_it_runs(tmp_path: Path) -> None:
+    """What run_workflow copies into the root is enough for Blender to import the workflow: the driver
+    and devtools/gui_workflow/, laid out as in the checkout, nothing else of it."""
+    import subprocess
+
+    driver = gui_workflow.copy_driver(tmp_path)
+    assert driver == Path("scripts/gui_workflow_blender.py") and (tmp_path / driver).is_file()
+    copied = {p.relative_to(tmp_path).as_posix() for p in (tmp_path / "devtools").rglob("*.py")}
+    assert copied == {"devtools/__init__.py"} | {p.relative_to(REPO).as_posix() for p in (REPO / "devtools" / "gui_workflow").glob("*.py")}
+    # Blender's Python there has no checkout on its path: only the copy (and bpy's own modules).
+    check = ("import sys; sys.path[:] = [sys.argv[1]] + [p for p in sys.path if p not in ('', sys.argv[2], sys.argv[3])]; "
+             "import devtools.gui_workflow.steps as steps; assert steps.__file__.startswith(sys.argv[1]), steps.__file__")
+    run = subprocess.run([sys.executable, "-c", check, str(tmp_path), str(REPO), str(REPO.parent)], capture_output=True,
+                         text=True, cwd=tmp_path, env={k: v for k, v in os.environ.items() if k != "PYTHONPATH"})
+    assert run.returncode == 0, run.stderr[-2000:]
