@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("engine", "vortx_blender", "operators", "ui")
+PACKAGES = ("engine", "vortx_blender", "operators", "ui", "devtools")
 
 
 def module_name(path: Path) -> str:
