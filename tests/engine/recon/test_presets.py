@@ -11,6 +11,7 @@ from dataclasses import replace
 import pytest
 
 from conftest import REPO
+from engine.batch.arguments import argument_parser as batch_argument_parser, parse_arguments as parse_batch_arguments
 from engine.errors import VortxError
 from engine.recon import cli
 from engine.recon.presets import (DEFAULT_QUALITY, PRESETS, QUALITY_FIELDS, QUALITY_NAMES, apply_quality, preset,
@@ -27,10 +28,7 @@ def _reconstruct(argv: list[str]) -> tuple[argparse.Namespace, ReconSettings]:
 
 
 def _batch(argv: list[str]) -> argparse.Namespace:
-    sys.path.insert(0, str(REPO / "scripts"))
-    import vortx_batch
-
-    return vortx_batch.parse_arguments(["cap", "--out", "a.blend", *argv])
+    return parse_batch_arguments(["cap", "--out", "a.blend", *argv])
 
 
 def test_the_presets_go_from_fast_to_careful() -> None:
@@ -82,10 +80,7 @@ def _help(add_arguments) -> str:
 
 
 def _batch_help() -> str:
-    sys.path.insert(0, str(REPO / "scripts"))
-    import vortx_batch
-
-    return " ".join(vortx_batch.argument_parser().format_help().split())
+    return " ".join(batch_argument_parser().format_help().split())
 
 
 def test_a_preset_the_method_does_not_read_is_refused(capsys) -> None:

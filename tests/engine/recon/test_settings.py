@@ -11,6 +11,7 @@ from dataclasses import fields
 import pytest
 
 from conftest import REPO
+from engine.batch.arguments import argument_parser as batch_argument_parser, parse_arguments as parse_batch_arguments
 from engine.errors import VortxError
 from engine.recon import cli
 from engine.recon.settings import BLENDER, CLI, ReconSettings, cli_flag, field_default, setting_fields
@@ -41,9 +42,6 @@ def _reconstruct_parser() -> argparse.ArgumentParser:
 
 
 def _batch_parser_actions() -> dict[str, argparse.Action]:
-    sys.path.insert(0, str(REPO / "scripts"))
-    import vortx_batch
-
     captured = {}
     real_parse = argparse.ArgumentParser.parse_args
 
@@ -53,7 +51,7 @@ def _batch_parser_actions() -> dict[str, argparse.Action]:
 
     argparse.ArgumentParser.parse_args = grab
     try:
-        vortx_batch.parse_arguments(["cap", "--out", "a.blend"])
+        parse_batch_arguments(["cap", "--out", "a.blend"])
     finally:
         argparse.ArgumentParser.parse_args = real_parse
     return captured
@@ -91,11 +89,8 @@ def test_no_flags_give_the_default_settings_and_flags_reach_them() -> None:
 
 
 def test_batch_help_states_the_real_image_size_default(capsys) -> None:
-    sys.path.insert(0, str(REPO / "scripts"))
-    import vortx_batch
-
     with pytest.raises(SystemExit):
-        vortx_batch.parse_arguments(["--help"])
+        parse_batch_arguments(["--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "the size the weights were trained at" in text and "640" not in text
 
@@ -175,10 +170,6 @@ def test_each_method_refuses_every_flag_it_does_not_read(method: str, tmp_path, 
     a message naming the flag and the method that reads it; scripts/vortx_batch.py says the same."""
     from engine.__main__ import main
     from engine.recon.settings import methods_using
-
-    sys.path.insert(0, str(REPO / "scripts"))
-    import vortx_batch
-
     name, extra, stereo_weights = method, [], False
     if method == "vortx with stereo weights":
         name, stereo_weights = "vortx", True
@@ -194,14 +185,14 @@ def test_each_method_refuses_every_flag_it_does_not_read(method: str, tmp_path, 
         err = capsys.readouterr().err
         if name in methods_using(f, stereo_weights):
             assert "capture not found" in err, f"{cli_flag(f)} with --method {name}: {err}"
-            vortx_batch.parse_arguments([str(missing), "--out", str(tmp_path / "room.blend"), "--vr", *flags])
+            parse_batch_arguments([str(missing), "--out", str(tmp_path / "room.blend"), "--vr", *flags])
             checked["read"] += 1
             continue
         users = " / ".join(methods_using(f))
         assert err.startswith(f"error: --method {name} does not use {cli_flag(f)}: "), err
         assert f"{cli_flag(f)} is used only by --method {users}" in err and "Leave it out" in err
         with pytest.raises(SystemExit):
-            vortx_batch.parse_arguments([str(missing), "--out", str(tmp_path / "room.blend"), "--vr", *flags])
+            parse_batch_arguments([str(missing), "--out", str(tmp_path / "room.blend"), "--vr", *flags])
         assert f"does not use {cli_flag(f)}" in capsys.readouterr().err
         checked["refused"] += 1
     # Each method reads some flags and not others (--weights, --views ... are VoRTX's; the stereo knobs stereo's).
@@ -210,10 +201,6 @@ def test_each_method_refuses_every_flag_it_does_not_read(method: str, tmp_path, 
 
 def test_texture_settings_are_refused_without_a_textured_result(tmp_path, capsys) -> None:
     from engine.__main__ import main
-
-    sys.path.insert(0, str(REPO / "scripts"))
-    import vortx_batch
-
     texture = [f for f in setting_fields(CLI) if f.metadata["textured"]]
     assert {f.name for f in texture} == {"texture_size", "face_budget", "headset"}
     for f in texture:
@@ -223,7 +210,7 @@ def test_texture_settings_are_refused_without_a_textured_result(tmp_path, capsys
         assert err.startswith(f"error: {cli_flag(f)} is used only by a textured result (--out room.glb, room.obj or "
                               "room.usdz)")
         with pytest.raises(SystemExit):
-            vortx_batch.parse_arguments(["nowhere", "--out", str(tmp_path / "room.blend"), *flags])
+            parse_batch_arguments(["nowhere", "--out", str(tmp_path / "room.blend"), *flags])
         assert f"{cli_flag(f)} is used only by a textured result (--vr)" in capsys.readouterr().err
 
 
