@@ -4,11 +4,10 @@ does; changing one of them by hand shows Custom; the panel shows the preset's me
 
 from __future__ import annotations
 
-import sys
+import importlib
 
 import pytest
 
-from conftest import REPO
 from fixtures_blender_ui import RecordingLayout
 
 
@@ -64,14 +63,12 @@ def test_the_panel_shows_the_presets_with_their_measured_time(blender, empty_sce
 
 
 def test_the_batch_quality_arrives_in_the_scene_as_that_preset(blender, empty_scene) -> None:
-    sys.path.insert(0, str(REPO / "scripts"))
-    import vortx_batch
-
-    args = vortx_batch.parse_arguments(["cap", "--out", "a.blend", "--quality", "preview"])
-    vortx_batch.apply_recon_settings(blender, empty_scene.vortx, args.settings)
+    batch = importlib.import_module(f"{blender.__name__}.vortx_blender.batch")
+    args = batch.parse_arguments(["cap", "--out", "a.blend", "--quality", "preview"])
+    batch.apply_recon_settings(empty_scene.vortx, args.settings)
     assert empty_scene.vortx.quality == "PREVIEW"
-    args = vortx_batch.parse_arguments(["cap", "--out", "a.blend", "--quality", "preview", "--stereo-views", "40"])
-    vortx_batch.apply_recon_settings(blender, empty_scene.vortx, args.settings)
+    args = batch.parse_arguments(["cap", "--out", "a.blend", "--quality", "preview", "--stereo-views", "40"])
+    batch.apply_recon_settings(empty_scene.vortx, args.settings)
     assert empty_scene.vortx.quality == "CUSTOM" and empty_scene.vortx.stereo_views == 40
 
 
