@@ -4,7 +4,9 @@ Colouring a mesh (`engine/recon/colour.py`, both reconstruction methods) and bak
 (`engine/texture/bake.py`) are the same act: render the mesh's own depth map from a photo's camera
 (`occlusion_depth`), keep the surface points that photo really sees (`visible_points`: in front,
 inside the image, facing the camera, not hidden behind the rendered surface) and read their colour
-(`sample_bilinear`). Points no photo sees are `UNSEEN_GREY`. Pure numpy + OpenCV, below engine/recon
+(`sample_bilinear`). Points no photo sees are `UNSEEN_GREY`. The vertex evidence
+(`engine/stereo/vertex_evidence.py`) projects with the same `points_in_view` and reads the stereo
+depth maps instead of the photos. Pure numpy + OpenCV, below engine/recon
 and engine/texture (it imports neither).
 
 Pixel convention: pixel (row i, column j) covers u in [j, j + 1), v in [i, i + 1), the same as the
@@ -42,6 +44,20 @@ def sample_bilinear(image: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarr
     return out.reshape(-1, 3)[:n].astype(np.float32)
 
 
+def points_in_view(points: np.ndarray, K: np.ndarray, pose: np.ndarray, image_size: tuple[int, int]
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The points a camera's image frames: (ids (M,) int64, u (M,), v (M,), z (M,)), in front of the
+    camera (z > NEAR_PLANE) and inside the image of `image_size` = (w, h), K in its pixels. The one
+    projection of vertex colours, the texture bake and the vertex evidence."""
+    w, h = image_size
+    cam = world_to_camera(points, pose)
+    z = cam[:, 2]
+    ids = np.flatnonzero(z > NEAR_PLANE)
+    u, v = camera_to_pixels(cam[ids], K)
+    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return ids[inside], u[inside], v[inside], z[ids][inside]
+
+
 def visible_points(
     points: np.ndarray, normals: np.ndarray, K: np.ndarray, pose: np.ndarray, image_size: tuple[int, int],
     depth: np.ndarray, tolerance: float,
@@ -56,20 +72,15 @@ def visible_points(
     """
     w, h = image_size
     dh, dw = depth.shape
-    cam = world_to_camera(points, pose)
-    z = cam[:, 2]
-    ids = np.flatnonzero(z > NEAR_PLANE)
-    u, v = camera_to_pixels(cam[ids], K)
-    inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    ids, u, v, z = points_in_view(points, K, pose, image_size)
     col = np.minimum(np.floor(u * (dw / w)).astype(np.int64), dw - 1)
     row = np.minimum(np.floor(v * (dh / h)).astype(np.int64), dh - 1)
-    ids, u, v, col, row = ids[inside], u[inside], v[inside], col[inside], row[inside]
     to_camera_dir = pose[:3, 3] - points[ids].astype(np.float64)
     to_camera_dir /= np.linalg.norm(to_camera_dir, axis=1, keepdims=True)
     cosine = np.einsum("nd,nd->n", normals[ids].astype(np.float64), to_camera_dir)
-    unoccluded = z[ids] <= depth[row, col] + tolerance + 0.02 * z[ids]
+    unoccluded = z <= depth[row, col] + tolerance + 0.02 * z
     keep = unoccluded & (cosine > MIN_COSINE)
-    return ids[keep], u[keep], v[keep], cosine[keep], z[ids][keep]
+    return ids[keep], u[keep], v[keep], cosine[keep], z[keep]
 
 
 def occlusion_depth(mesh: Mesh, K: np.ndarray, pose: np.ndarray, image_size: tuple[int, int],

@@ -194,7 +194,7 @@ def _run_planned(
     if stereo_maps:
         with timer.stage("evidence"):
             # Judged in the band the classical surface it started from was fused with, as the stereo method does.
-            stats["evidence"] = attach_evidence(mesh, stereo_maps, settings.voxel_size, network_completes=True, device=device,
+            stats["evidence"] = attach_evidence(mesh, stereo_maps, settings.voxel_size, network_completes=True,
                                                 truncation_voxels=CLASSICAL_TRUNCATION_VOXELS)
     return ReconResult(mesh, plan.tiles, stats, None)
 

@@ -190,7 +190,7 @@ def run_stereo_fusion(
             with timer.stage("colour"):
                 mesh.colors = colour_mesh(mesh, plan, settings, progress, cancel)
             with timer.stage("evidence"):  # how well each vertex was observed: the confidence layer
-                stats["evidence"] = attach_evidence(mesh, maps, settings.voxel_size, network_completes=False, device=device,
+                stats["evidence"] = attach_evidence(mesh, maps, settings.voxel_size, network_completes=False,
                                                     truncation_voxels=CLASSICAL_TRUNCATION_VOXELS)
     for tile in plan.active_tiles:
         tile.state = TileState.DONE if message is None else TileState.EMPTY

@@ -12,33 +12,24 @@ Per vertex, from the stereo depth maps of the run:
   where no depth map sees the vertex.
 
 The same pixel rule as the TSDF fusion that built the surface (engine/tsdf/integration.py): a camera
-point projects to the pixel that contains K @ x_cam (floor), pixel (0, 0) covering [0, 1)^2.
+point projects to the pixel that contains K @ x_cam (floor), pixel (0, 0) covering [0, 1)^2; the
+projection is the photo lookups' own (`engine.photo_sampling.points_in_view`).
 The names and the colour an artist sees live in engine/observation.py (numpy only, for Blender).
 """
 
 from __future__ import annotations
 
-from typing import Optional, Sequence
+from typing import Sequence
 
 import numpy as np
-import torch
 
-from ..observation import COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE
 from ..mesh_io import Mesh
+from ..observation import COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE
+from ..photo_sampling import points_in_view
 from .depth_maps import DepthMap
 from .fused_tsdf import TRUNCATION_VOXELS
 
-VERTEX_CHUNK = 1 << 18  # vertices per projection batch: bounds the temporaries to a few MB per map
-MIN_DEPTH = 1e-3  # metres: points nearer the camera plane than this are behind it
-
-
-def observe_vertices(
-    vertices: np.ndarray,
-    maps: Sequence[DepthMap],
-    truncation: float,
-    device: Optional[torch.device] = None,
-    chunk: int = VERTEX_CHUNK,
-) -> tuple[np.ndarray, np.ndarray]:
+def observe_vertices(vertices: np.ndarray, maps: Sequence[DepthMap], truncation: float) -> tuple[np.ndarray, np.ndarray]:
     """(observations (V,) float32, stereo_confidence (V,) float32) of world-space `vertices` (V, 3).
 
     truncation: metres; a view observes a vertex when |depth at its pixel - its depth| <= truncation
@@ -46,34 +37,19 @@ def observe_vertices(
     """
     if truncation <= 0:
         raise ValueError(f"truncation must be positive, got {truncation}")
-    device = torch.device(device) if device is not None else torch.device("cpu")
-    points = torch.as_tensor(np.asarray(vertices, np.float32).reshape(-1, 3), device=device)
-    count = torch.zeros(len(points), dtype=torch.float32, device=device)
-    confidence_sum = torch.zeros(len(points), dtype=torch.float32, device=device)
+    points = np.asarray(vertices, np.float64).reshape(-1, 3)
+    count = np.zeros(len(points), np.float32)
+    confidence_sum = np.zeros(len(points), np.float32)
     for depth_map in maps:
-        depth = torch.as_tensor(depth_map.depth, dtype=torch.float32, device=device)
-        confidence = torch.as_tensor(depth_map.confidence, dtype=torch.float32, device=device)
-        height, width = depth.shape
-        world_to_cam = np.linalg.inv(np.asarray(depth_map.pose, np.float64))
-        rotation = torch.as_tensor(world_to_cam[:3, :3], dtype=torch.float32, device=device)
-        translation = torch.as_tensor(world_to_cam[:3, 3], dtype=torch.float32, device=device)
-        fx, fy, cx, cy = (float(depth_map.K[0, 0]), float(depth_map.K[1, 1]), float(depth_map.K[0, 2]),
-                          float(depth_map.K[1, 2]))
-        for start in range(0, len(points), chunk):
-            cam = points[start:start + chunk] @ rotation.T + translation  # (n, 3)
-            z = cam[:, 2]
-            front = z > MIN_DEPTH
-            safe_z = torch.where(front, z, torch.ones_like(z))
-            u = torch.floor(fx * cam[:, 0] / safe_z + cx)
-            v = torch.floor(fy * cam[:, 1] / safe_z + cy)
-            inside = front & (u >= 0) & (u < width) & (v >= 0) & (v < height)
-            flat = torch.where(inside, v * width + u, torch.zeros_like(u)).long()
-            seen_depth = depth.reshape(-1)[flat]
-            seen = inside & (seen_depth > 0) & ((seen_depth - z).abs() <= truncation)
-            count[start:start + chunk] += seen.float()
-            confidence_sum[start:start + chunk] += torch.where(seen, confidence.reshape(-1)[flat], torch.zeros_like(z))
-    mean_confidence = torch.where(count > 0, confidence_sum / count.clamp(min=1), torch.zeros_like(count))
-    return count.cpu().numpy(), mean_confidence.cpu().numpy()
+        height, width = depth_map.depth.shape
+        ids, u, v, z = points_in_view(points, depth_map.K, depth_map.pose, (width, height))
+        row, col = np.floor(v).astype(np.int64), np.floor(u).astype(np.int64)
+        seen_depth = depth_map.depth[row, col]
+        seen = (seen_depth > 0) & (np.abs(seen_depth - z) <= truncation)
+        count[ids[seen]] += 1
+        confidence_sum[ids[seen]] += depth_map.confidence[row[seen], col[seen]]
+    mean_confidence = np.where(count > 0, confidence_sum / np.maximum(count, 1), 0).astype(np.float32)
+    return count, mean_confidence
 
 
 def vertex_evidence(
@@ -81,27 +57,26 @@ def vertex_evidence(
     maps: Sequence[DepthMap],
     truncation: float,
     network_completes: bool,
-    device: Optional[torch.device] = None,
 ) -> dict[str, np.ndarray]:
     """The evidence attributes of a mesh's vertices (V, 3): name -> (V,) float32 (see module doc).
 
     network_completes: True for a network's surface (unobserved vertices are `completed`), False for
     classical fusion, which places surface only where depth maps put it (`completed` is 0).
     """
-    observations, confidence = observe_vertices(vertices, maps, truncation, device)
+    observations, confidence = observe_vertices(vertices, maps, truncation)
     completed = (observations == 0) if network_completes else np.zeros(len(observations), bool)
     return {OBSERVATIONS: observations, STEREO_CONFIDENCE: confidence, COMPLETED: completed.astype(np.float32)}
 
 
 def attach_evidence(
     mesh: Mesh, maps: Sequence[DepthMap], voxel_size: float, network_completes: bool,
-    device: Optional[torch.device] = None, truncation_voxels: float = TRUNCATION_VOXELS,
+    truncation_voxels: float = TRUNCATION_VOXELS,
 ) -> dict[str, float]:
     """Set `mesh.attributes` to the evidence of its vertices from `maps`, judged within the TSDF truncation
     the surface was fused with (`truncation_voxels` voxels of `voxel_size`; 3 as the ground truth and the
     network's stereo TSDF); returns `evidence_summary`."""
     mesh.attributes = {**mesh.attributes, **vertex_evidence(mesh.vertices, maps, truncation_voxels * voxel_size,
-                                                             network_completes, device)}
+                                                             network_completes)}
     return evidence_summary(mesh.attributes)
 
 

@@ -69,6 +69,11 @@ def test_photo_sampling_and_mesh_helpers_sit_below_recon_and_texture(lower):
     assert not above, f"{lower} imports {sorted(above)}: it must stay below recon and texture"
 
 
+@pytest.mark.parametrize("user", ["engine.recon.colour", "engine.texture.bake", "engine.stereo.vertex_evidence"])
+def test_colours_the_bake_and_the_evidence_look_up_points_in_one_home(user):
+    assert "engine.photo_sampling" in imported_modules(user)
+
+
 def test_texture_never_imports_recon_but_its_command_line():
     offending = {m: sorted(i for i in imported_modules(m) if i == "engine.recon" or i.startswith("engine.recon."))
                  for m in _in("engine.texture") if m != "engine.texture.cli"}

@@ -69,14 +69,6 @@ def test_a_plane_seen_by_three_views_one_occluded_one_with_a_hole(three_views) -
     np.testing.assert_allclose(confidence, want_confidence, atol=1e-6)
 
 
-def test_chunks_give_the_same_counts(three_views) -> None:
-    vertices = plane_vertices()
-    whole = observe_vertices(vertices, three_views, TRUNCATION)
-    chunked = observe_vertices(vertices, three_views, TRUNCATION, chunk=5)
-    np.testing.assert_array_equal(whole[0], chunked[0])
-    np.testing.assert_allclose(whole[1], chunked[1])
-
-
 def test_only_vertices_at_the_depth_are_observed(three_views) -> None:
     """Off the plane by more than the truncation (in front: the view saw through it; behind: hidden),
     outside every view, or behind the cameras: nobody observed it."""
