@@ -10,7 +10,10 @@ the Node it was drawn into: its kind (root, row, column, box, split), the attrib
 
 from __future__ import annotations
 
-from typing import Any, Optional
+import threading
+from contextlib import contextmanager
+from types import ModuleType
+from typing import Any, Iterator, Optional
 
 SUB_LAYOUTS = ("row", "column", "box", "split", "column_flow", "grid_flow")
 
@@ -98,3 +101,26 @@ class RecordingLayout:
             return RecordingLayout(self._calls, Node(name, dict(bound), None))  # detached: not an item
 
         return call
+
+
+@contextmanager
+def job_paused_at(jobs: ModuleType, title: str, stage: str, done: int, total: int,
+                  detail: Optional[str] = None) -> Iterator[Any]:
+    """A job `title` (vortx_blender.jobs.Job) that has reported `stage` `done`/`total` (and the tile
+    `detail`, if any) and waits there, polled once, so panels draw it as running; released on exit."""
+    release, reported = threading.Event(), threading.Event()
+
+    def work(progress, cancel):
+        progress(stage, done, total)
+        reported.set()
+        release.wait(10)
+
+    job = jobs.Job(title, work, detail=(lambda: detail) if detail is not None else None).start()
+    try:
+        reported.wait(5)
+        job.poll()
+        yield job
+    finally:
+        release.set()
+        job.wait()
+

@@ -15,7 +15,7 @@ from typing import Any, Iterator
 
 import pytest
 
-from fixtures_blender_ui import Bound, Node, RecordingLayout
+from fixtures_blender_ui import Bound, Node, RecordingLayout, job_paused_at
 
 
 def _sidebar(blender: Any) -> Any:
@@ -261,28 +261,12 @@ def test_the_capture_panel_leaves_the_reconstruction_panel_on_a_1000_px_screen(b
 def test_a_running_job_s_progress_fits_its_bar(blender, empty_scene) -> None:
     """The bar says the stage and counts, with the tiles done when they fit (the status bar has the
     rest): the real window cut "VoRTX Reconstruct: ... (Esc to cancel)" in the middle."""
-    import threading
-
     import bpy
 
-    jobs = blender.vortx_blender.jobs
-    release, reported = threading.Event(), threading.Event()
-
-    def work(progress, cancel):
-        progress("3D CNN 32 cm", 0, 1)
-        reported.set()
-        release.wait(10)
-
-    job = jobs.Job("Reconstruct", work, detail=lambda: "tiles 0/4 done, 1 running").start()
-    try:
-        reported.wait(5)
-        job.poll()
+    with job_paused_at(blender.vortx_blender.jobs, "Reconstruct", "3D CNN 32 cm", 0, 1, "tiles 0/4 done, 1 running") as job:
         sidebar = _sidebar(blender)
         calls = _draw(blender.ui.panels.VORTX_PT_reconstruction, bpy.context)
         bars = [(text, budget) for text, budget, what in texts_and_budgets(blender, calls) if what == "progress bar"]
         assert [text for text, _ in bars] == ["3D CNN 32 cm 0/1"]  # the tiles: in the status bar and viewport
         assert all(sidebar.text_width(text) <= budget for text, budget in bars)
         assert "(Esc to cancel)" in job.status_text()  # the status bar's text says how to stop it
-    finally:
-        release.set()
-        job.wait()

@@ -8,14 +8,13 @@ progress type) are valid, `prop` names a property of the data and `operator` a r
 
 from __future__ import annotations
 
-import threading
 from dataclasses import fields
 from types import SimpleNamespace
 
 import pytest
 
 from engine.recon.settings import ReconSettings
-from fixtures_blender_ui import RecordingLayout
+from fixtures_blender_ui import RecordingLayout, job_paused_at
 
 RECON_NAMES = {f.name for f in fields(ReconSettings)}
 PANELS = ("VORTX_PT_capture", "VORTX_PT_capture_details", "VORTX_PT_pose_settings", "VORTX_PT_reconstruction",
@@ -167,24 +166,10 @@ def test_explain_shows_its_text_as_the_tooltip_and_reports_it(blender, empty_sce
 def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
     import bpy
 
-    jobs = blender.vortx_blender.jobs
-    release, reported = threading.Event(), threading.Event()
-
-    def work(progress, cancel):
-        progress("matching", 3, 12)
-        reported.set()
-        release.wait(10)
-
-    job = jobs.Job("Estimate Poses", work).start()
-    try:
-        reported.wait(5)
-        job.poll()
+    with job_paused_at(blender.vortx_blender.jobs, "Estimate Poses", "matching", 3, 12):
         (progress,) = [c[1] for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "progress"]
         assert progress["factor"] == pytest.approx(0.25)
         assert "matching 3/12" in progress["text"]
-    finally:
-        release.set()
-        job.wait()
     assert not [c for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "progress"]
 
 
@@ -234,25 +219,11 @@ def test_reconstruction_panels_show_their_operators(blender, empty_scene, panel:
 def test_reconstruction_progress_shows_in_its_own_panel(blender, empty_scene) -> None:
     import bpy
 
-    jobs = blender.vortx_blender.jobs
-    release, reported = threading.Event(), threading.Event()
-
-    def work(progress, cancel):
-        progress("fusion 16 cm", 2, 8)
-        reported.set()
-        release.wait(10)
-
-    job = jobs.Job("Reconstruct", work, detail=lambda: "tiles 2/8 done, 1 running").start()
-    try:
-        reported.wait(5)
-        job.poll()
+    with job_paused_at(blender.vortx_blender.jobs, "Reconstruct", "fusion 16 cm", 2, 8, "tiles 2/8 done, 1 running"):
         (progress,) = [c[1] for c in _draw("VORTX_PT_reconstruction", bpy.context) if c[0] == "progress"]
         assert progress["factor"] == pytest.approx(0.25)
         assert progress["text"] in ("fusion 16 cm 2/8, tiles 2/8 done, 1 running", "fusion 16 cm 2/8")  # as fits
         assert not [c for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "progress"]
-    finally:
-        release.set()
-        job.wait()
 
 
 def test_recorder_rejects_unknown_property(blender, empty_scene) -> None:
@@ -300,24 +271,10 @@ def test_result_panel_offers_the_bake_with_the_vr_preset_and_its_progress(blende
     labels = [c[1].get("text") for c in _draw("VORTX_PT_result", bpy.context) if c[0] == "label"]
     assert "Textured: 2048 px, 1 faces" in labels
 
-    jobs = blender.vortx_blender.jobs
-    release, reported = threading.Event(), threading.Event()
-
-    def work(progress, cancel):
-        progress("texture: bake", 3, 6)
-        reported.set()
-        release.wait(10)
-
-    job = jobs.Job("Bake Texture", work).start()
-    try:
-        reported.wait(5)
-        job.poll()
+    with job_paused_at(blender.vortx_blender.jobs, "Bake Texture", "texture: bake", 3, 6):
         (progress,) = [c[1] for c in _draw("VORTX_PT_result", bpy.context) if c[0] == "progress"]
         assert progress["factor"] == pytest.approx(0.5) and "texture: bake 3/6" in progress["text"]
         assert not [c for c in _draw("VORTX_PT_capture", bpy.context) if c[0] == "progress"]
-    finally:
-        release.set()
-        job.wait()
 
 
 def test_details_wrap_long_text_whole_to_the_sidebar_width(blender, empty_scene) -> None:
