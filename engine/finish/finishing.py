@@ -1,0 +1,294 @@
+"""Plane-aware finishing of a reconstructed room: the `finish` setting (off / clean / room).
+
+Naive clean-up trades geometry away (docs/experiments.md, "A finished room"): dropping small pieces
+throws real surface out with the dust, smoothing pulls walls off their planes. This uses the evidence
+instead: the structural planes (`planes.py`), the depth maps' votes (`free_space.py`) and the cameras.
+
+- clean: pieces are dropped where the views do not support them (most of their vertices seen by
+  fewer than `min_views` depth maps, or seen through more than seen: a floater in free space), surface
+  behind a structural plane where the plane stands (nothing can be seen through a wall) is dropped, and
+  vertices within `tolerance` of a structural plane are moved onto it. Nothing is added.
+- room: as clean, but each structural plane becomes one clean grid surface (cells of the voxel size)
+  over the cells the surface covered, plus the cells no view saw through inside the plane's extent
+  (bounded by the floor, ceiling and neighbouring walls, by what the views framed, and by free space:
+  a wall does not close an open door or a window seen through). Its faces replace the mesh's own near
+  the plane; furniture and anything off the planes stays as it was. Added faces are marked: the
+  vertex attribute ADDED is 1 on them (their vertices are their own, not shared with seen faces).
+
+Input and output are `engine.mesh_io.Mesh` in the engine's world (metres, Z up); colours and evidence
+are attached after finishing by the reconstruction, so only positions, faces and ADDED come out.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Optional, Sequence
+
+import numpy as np
+from scipy import ndimage
+
+from ..mesh_io import Mesh
+from ..meshops import compact, face_pieces, keep_faces, vertex_normals
+from .free_space import DepthView, Votes, view_votes
+from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_structural_planes
+
+FINISH_OFF, FINISH_CLEAN, FINISH_ROOM = "off", "clean", "room"
+FINISH_MODES = (FINISH_OFF, FINISH_CLEAN, FINISH_ROOM)
+ADDED = "added"  # vertex attribute: 1 on faces the finishing added (not seen), 0 elsewhere
+
+SNAP_DISTANCE = 0.6  # m: a plane's observed end this near a neighbouring wall is taken to that wall
+SUPPORTED_SHARE = 0.3  # of a piece's vertices seen by `min_views` views: the piece is supported
+SUPPORTED_VERTICES = 64  # or this many such vertices (a 30 cm patch at 4 cm voxels seen twice)
+FLATTEN_COS = 0.5  # a vertex is flattened onto a plane only when its normal is within 60 deg of the plane's
+EXTENT_PERCENTILE = 0.5  # % of a plane's surface cut at each end of its extent (stray faces)
+
+
+@dataclass
+class FinishOptions:
+    """tolerance: m from a structural plane within which surface is the plane (None: 2 voxels, at
+    least 6 cm). min_views: depth maps that must see a piece for it to stay. cell: the plane grid's cell
+    in m (None: the voxel size)."""
+
+    tolerance: Optional[float] = None
+    min_views: int = 2
+    cell: Optional[float] = None
+    min_plane_area: float = 0.3
+
+
+@dataclass
+class FinishResult:
+    mesh: Mesh
+    planes: list[StructuralPlane]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class PlaneGrid:
+    """One plane's cells: origin (2,) in-plane coordinates of cell (0, 0)'s corner, cell size, and the
+    masks (A, B) bool of cells the surface covered (`observed`), the views saw through (`free`) and
+    the finished surface's cells (`keep` = observed, or added where nothing contradicts it)."""
+
+    plane: StructuralPlane
+    origin: np.ndarray
+    cell: float
+    observed: np.ndarray
+    free: np.ndarray
+    keep: np.ndarray
+
+    @property
+    def added(self) -> np.ndarray:
+        return self.keep & ~self.observed
+
+    def cells_of(self, coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(i (N,), j (N,), inside (N,) bool) of in-plane coordinates (N, 2)."""
+        index = np.floor((coords - self.origin) / self.cell).astype(np.int64)
+        inside = (index >= 0).all(axis=1) & (index[:, 0] < self.keep.shape[0]) & (index[:, 1] < self.keep.shape[1])
+        return np.clip(index[:, 0], 0, self.keep.shape[0] - 1), np.clip(index[:, 1], 0, self.keep.shape[1] - 1), inside
+
+    def covers(self, points: np.ndarray, dilate: int = 1) -> np.ndarray:
+        """(N,) bool: world points (N, 3) project into a kept cell (grown by `dilate` cells)."""
+        mask = ndimage.binary_dilation(self.keep, iterations=dilate) if dilate else self.keep
+        i, j, inside = self.cells_of(self.plane.to_plane(points))
+        return inside & mask[i, j]
+
+
+def _robust_range(values: np.ndarray, weights: np.ndarray) -> tuple[float, float]:
+    order = np.argsort(values)
+    cumulative = np.cumsum(weights[order])
+    cut = EXTENT_PERCENTILE / 100 * cumulative[-1]
+    return float(values[order][np.searchsorted(cumulative, cut)]), float(values[order][np.searchsorted(cumulative, cumulative[-1] - cut)])
+
+
+def _snapped(low: float, high: float, stops: list[float]) -> tuple[float, float]:
+    """The range's ends moved to the nearest `stops` (where neighbouring walls cross it) within SNAP_DISTANCE."""
+    for stop in stops:
+        if abs(stop - low) <= SNAP_DISTANCE and stop < high:
+            low = stop
+        elif abs(stop - high) <= SNAP_DISTANCE and stop > low:
+            high = stop
+    return low, high
+
+
+def _wall_stops(plane: StructuralPlane, axis: int, walls: Sequence[StructuralPlane]) -> list[float]:
+    """Where the other walls cross `plane`'s in-plane axis `axis` (0 = u), as coordinates along it."""
+    stops = []
+    direction = plane.axes[axis]
+    for wall in walls:
+        if wall is plane or abs(wall.normal @ direction) < 0.5:
+            continue
+        # wall.normal . (plane point + t * direction) = wall.offset, from the plane's origin point.
+        stops.append(float((wall.offset - wall.normal @ (plane.normal * plane.offset)) / (wall.normal @ direction)))
+    return stops
+
+
+def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centroids: np.ndarray, areas: np.ndarray,
+               distance: np.ndarray, tolerance: float, cell: float, views: Sequence[DepthView],
+               fill: bool) -> Optional[PlaneGrid]:
+    """The cells of one structural plane (see the module doc); None when no surface lies on it.
+
+    centroids (F, 3), areas (F,): the mesh's faces; distance (F,) their signed distance to the plane."""
+    near = np.abs(distance) <= tolerance
+    if not near.any():
+        return None
+    coords = plane.to_plane(centroids[near])
+    walls = [p for p in planes if p.kind == WALL]
+    floor = next((p for p in planes if p.kind == FLOOR), None)
+    ceiling = next((p for p in planes if p.kind == CEILING), None)
+    (a0, a1), (b0, b1) = _robust_range(coords[:, 0], areas[near]), _robust_range(coords[:, 1], areas[near])
+    a0, a1 = _snapped(a0, a1, _wall_stops(plane, 0, walls))
+    if plane.kind == WALL:
+        if floor is not None:
+            b0 = floor.offset
+        if ceiling is not None:
+            b1 = -ceiling.offset
+    else:
+        b0, b1 = _snapped(b0, b1, _wall_stops(plane, 1, walls))
+    origin = np.array([a0, b0])
+    shape = (max(1, int(np.ceil((a1 - a0) / cell))), max(1, int(np.ceil((b1 - b0) / cell))))
+    grid = PlaneGrid(plane, origin, cell, np.zeros(shape, bool), np.zeros(shape, bool), np.zeros(shape, bool))
+    i, j, inside = grid.cells_of(coords)
+    grid.observed[i[inside], j[inside]] = True
+    # Faces of the 4 cm marching cubes leave single empty cells between their centroids: close them.
+    grid.observed = ndimage.binary_closing(grid.observed, structure=np.ones((3, 3), bool), border_value=0) | grid.observed
+    ii, jj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
+    centres = plane.from_plane(np.stack([a0 + (ii.ravel() + 0.5) * cell, b0 + (jj.ravel() + 0.5) * cell], axis=1))
+    inside_walls = np.ones(len(centres), bool)
+    if plane.kind != WALL:  # the floor and ceiling stop at the walls, where a wall stands
+        for wall in walls:
+            along = wall.to_plane(centres)[:, 0]
+            wall_coords = wall.to_plane(centroids[np.abs(wall.distance(centroids)) <= tolerance])[:, 0]
+            if len(wall_coords) == 0:
+                continue
+            span = np.percentile(wall_coords, 1) - SNAP_DISTANCE, np.percentile(wall_coords, 99) + SNAP_DISTANCE
+            inside_walls &= ~((wall.distance(centres) < -cell) & (along >= span[0]) & (along <= span[1]))
+    grid.observed &= inside_walls.reshape(shape)
+    votes: Votes = view_votes(centres, views)
+    grid.free = votes.free().reshape(shape)
+    grid.keep = grid.observed.copy()
+    if fill:
+        # In some photo, and no view saw through it: a stereo gap on a plain wall or a stretch hidden
+        # behind furniture closes; an open door or a window seen through stays open.
+        fillable = (votes.in_view >= 1) & ~votes.contradicted() & inside_walls
+        grid.keep |= fillable.reshape(shape)
+    return grid
+
+
+def grid_mesh(grid: PlaneGrid, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices (V, 3) float64, faces (F, 3) int64) of the `cells` (A, B) bool of a grid: two triangles
+    per cell wound so their normal is the plane's, corners shared between neighbouring cells."""
+    i, j = np.nonzero(cells)
+    if len(i) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    width = cells.shape[1] + 1
+    corners = np.stack([i * width + j, (i + 1) * width + j, (i + 1) * width + j + 1, i * width + j + 1], axis=1)
+    used, inverse = np.unique(corners, return_inverse=True)
+    corners = inverse.reshape(-1, 4)
+    coords = grid.origin + np.stack([used // width, used % width], axis=1) * grid.cell
+    faces = np.concatenate([corners[:, [0, 1, 2]], corners[:, [0, 2, 3]]])
+    return grid.plane.from_plane(coords), faces
+
+
+def _pieces_to_drop(mesh: Mesh, votes: Votes, min_views: int) -> tuple[np.ndarray, int, int]:
+    """(drop (F,) bool, pieces, dropped pieces): a piece goes when few of its vertices are seen by
+    `min_views` views (under SUPPORTED_SHARE of them and under SUPPORTED_VERTICES), or when most of its
+    vertices are seen through by more views than see them (it floats in free space)."""
+    labels, sizes = face_pieces(mesh.faces, len(mesh.vertices))
+    if len(sizes) == 0:
+        return np.zeros(0, bool), 0, 0
+    vertex_piece = np.zeros(len(mesh.vertices), np.int64)
+    vertex_piece[mesh.faces.ravel()] = np.repeat(labels, 3)
+    used = np.zeros(len(mesh.vertices), bool)
+    used[mesh.faces.ravel()] = True
+    count = np.bincount(vertex_piece[used], minlength=len(sizes)).astype(np.float64)
+    supported = np.bincount(vertex_piece[used], (votes.seen[used] >= min_views).astype(np.float64), minlength=len(sizes))
+    floating = np.bincount(vertex_piece[used], (votes.through[used] > votes.seen[used]).astype(np.float64), minlength=len(sizes))
+    # A large surface seen well in part (a floor seen from afar) stays: enough of it is supported.
+    drop_piece = ((supported < SUPPORTED_SHARE * count) & (supported < SUPPORTED_VERTICES)) | (floating > 0.5 * count)
+    return drop_piece[labels], int(len(sizes)), int(drop_piece.sum())
+
+
+def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarray, voxel_size: float, mode: str,
+                options: Optional[FinishOptions] = None) -> FinishResult:
+    """The finished mesh (see the module doc) of `mesh` (world metres, Z up, wound toward free space),
+    judged by `views` (depth maps with their cameras) and the capture's `camera_centres` (C, 3).
+    mode: FINISH_OFF (returned as it is), FINISH_CLEAN or FINISH_ROOM. The result's mesh has normals
+    and the ADDED attribute, no colours."""
+    if mode not in FINISH_MODES:
+        raise ValueError(f"finish mode must be one of {FINISH_MODES}, got {mode!r}")
+    options = options or FinishOptions()
+    if mode == FINISH_OFF or len(mesh.faces) == 0:
+        return FinishResult(mesh, [], {"mode": mode})
+    tolerance = options.tolerance if options.tolerance is not None else max(2 * voxel_size, 0.06)
+    cell = options.cell or voxel_size
+    vertices = np.asarray(mesh.vertices, np.float64)
+    faces = np.asarray(mesh.faces, np.int64)
+    planes, layout = find_structural_planes(vertices, faces, camera_centres, options.min_plane_area)
+    centroids, areas, _ = face_geometry(vertices, faces)
+    stats: dict[str, Any] = {"mode": mode, "planes": [p.to_dict() for p in planes], **layout,
+                             "faces_in": int(len(faces))}
+
+    grids = []
+    drop = np.zeros(len(faces), bool)
+    for plane in planes:
+        grid = plane_grid(plane, planes, centroids, areas, plane.distance(centroids), tolerance, cell, views,
+                          fill=mode == FINISH_ROOM)
+        if grid is None:
+            continue
+        grids.append(grid)
+        vertex_distance = plane.distance(vertices)[faces]  # (F, 3)
+        covered = grid.covers(centroids)
+        behind = (vertex_distance < -tolerance).all(axis=1) & covered  # hidden by the plane where it stands
+        drop |= behind
+        if mode == FINISH_ROOM:  # the plane's grid replaces the surface on it
+            drop |= (np.abs(vertex_distance) <= tolerance).all(axis=1) & covered
+    stats["dropped_behind_or_on_planes"] = int(drop.sum())
+    kept = keep_faces(Mesh(vertices.astype(np.float32), faces.astype(np.int32)), ~drop)
+
+    votes = view_votes(kept.vertices, views)
+    drop_piece, pieces, dropped = _pieces_to_drop(kept, votes, options.min_views)
+    stats.update({"pieces_before": pieces, "pieces_dropped": dropped})
+    kept = keep_faces(kept, ~drop_piece)
+    out_vertices = np.asarray(kept.vertices, np.float64)
+
+    if mode == FINISH_CLEAN:  # flatten what lies on a plane where the plane stands
+        moved = np.zeros(len(out_vertices), bool)
+        normals = vertex_normals(out_vertices, np.asarray(kept.faces, np.int64))
+        for grid in grids:
+            d = grid.plane.distance(out_vertices)
+            # Facing the plane's way (within 60 deg: crumpled wall surface does): a cabinet's side
+            # standing on the floor is not pulled down onto it.
+            facing = normals @ grid.plane.normal > FLATTEN_COS
+            on = (np.abs(d) <= tolerance) & facing & grid.covers(out_vertices) & ~moved
+            out_vertices[on] -= d[on, None] * grid.plane.normal
+            moved |= on
+        stats["flattened_vertices"] = int(moved.sum())
+
+    parts_v, parts_f, parts_added = [out_vertices], [np.asarray(kept.faces, np.int64)], [np.zeros(len(out_vertices))]
+    offset = len(out_vertices)
+    added_area = 0.0
+    if mode == FINISH_ROOM:
+        for grid in grids:
+            for cells, flag in ((grid.observed & grid.keep, 0.0), (grid.added, 1.0)):
+                v, f = grid_mesh(grid, cells)
+                parts_v.append(v)
+                parts_f.append(f + offset)
+                parts_added.append(np.full(len(v), flag))
+                offset += len(v)
+            added_area += float(grid.added.sum()) * grid.cell ** 2
+    stats["added_area_m2"] = round(added_area, 3)
+    stats["plane_cells"] = [{"kind": g.plane.kind, "observed": int(g.observed.sum()), "added": int(g.added.sum()),
+                             "free": int(g.free.sum())} for g in grids]
+    out_vertices, out_faces = np.concatenate(parts_v), np.concatenate(parts_f)
+    added = np.concatenate(parts_added)
+    if len(out_faces):
+        used = np.zeros(len(out_vertices), bool)
+        used[out_faces.ravel()] = True
+        added = added[used]
+        out_vertices, out_faces = compact(out_vertices, out_faces)
+    else:
+        out_vertices, added = np.zeros((0, 3)), np.zeros(0)
+    out = Mesh(out_vertices.astype(np.float32), out_faces.astype(np.int32),
+               vertex_normals(out_vertices, out_faces) if len(out_faces) else np.zeros((0, 3), np.float32),
+               attributes={ADDED: added.astype(np.float32)})
+    stats["faces_out"] = int(len(out_faces))
+    return FinishResult(out, planes, stats)

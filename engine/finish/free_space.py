@@ -1,0 +1,113 @@
+"""What the depth maps say about points in space: seen there, seen through (free space) or hidden.
+
+Every view with a depth map votes on a point it frames: the depth at its pixel equals the point's
+depth (within a margin) -> the view *saw* a surface there; it is farther -> the view *saw through*
+the point, so the point is free space (an open door, a window, air in front of a wall); it is nearer
+-> the point was *hidden* behind something (the wall behind a wardrobe). No depth at the pixel, or
+the point outside the image: no vote. The finishing stage reads these votes to bound planes (a wall
+is not extended where views saw through it), to close holes (only where no view saw through) and to
+judge pieces (a piece in free space or seen by too few views is dropped).
+
+The stereo method's own depth maps are the views (`engine.stereo.depth_maps.DepthMap` has the fields);
+a method without depth maps uses the mesh's own depth from the keyframes (`mesh_depth_views`).
+Pixel convention as the fusion's: pixel (i, j) covers u in [j, j + 1), v in [i, i + 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, Sequence
+
+import numpy as np
+
+from ..geometry.cameras import scale_intrinsics
+from ..mesh_io import Mesh
+from ..photo_sampling import occlusion_depth, points_in_view
+
+# Depths agree within this many metres plus this share of the depth: stereo depth on plain walls is
+# off by a few percent (docs/experiments.md, SUN3D: median 6-7 % on refined poses).
+AGREE_METRES = 0.08
+AGREE_RELATIVE = 0.03
+
+
+class DepthView(Protocol):
+    """A depth map and its camera: depth (h, w) float32 planar metres (0 or inf = none), K (3, 3) in
+    pixels of `depth`, pose (4, 4) camera-to-world."""
+
+    depth: np.ndarray
+    K: np.ndarray
+    pose: np.ndarray
+
+
+@dataclass
+class PlainDepthView:
+    """A DepthView made here (from a rendered mesh)."""
+
+    depth: np.ndarray
+    K: np.ndarray
+    pose: np.ndarray
+
+
+@dataclass
+class Votes:
+    """Per point (N,) int32 counts of views that saw a surface there, saw through it, or saw it hidden,
+    and of views whose image frames it at all (with a depth at its pixel or not: a plain wall that
+    stereo could not match is still in view)."""
+
+    seen: np.ndarray
+    through: np.ndarray
+    hidden: np.ndarray
+    in_view: np.ndarray
+
+    @property
+    def framed(self) -> np.ndarray:
+        """(N,) views with a depth where the point projects (any of the three)."""
+        return self.seen + self.through + self.hidden
+
+    def free(self, min_votes: int = 2) -> np.ndarray:
+        """(N,) bool: free space by the evidence: at least `min_votes` views saw through the point, and
+        more saw through than saw a surface there (one stray depth behind a wall does not open it)."""
+        return (self.through >= min_votes) & (self.through > self.seen)
+
+    def contradicted(self) -> np.ndarray:
+        """(N,) bool: surface there is contradicted: a view saw through the point, and fewer than three
+        times as many saw a surface there or something in front of it (a stray far depth is outvoted)."""
+        return (self.through > 0) & (3 * self.through > self.seen + self.hidden)
+
+
+def view_votes(points: np.ndarray, views: Sequence[DepthView], agree_metres: float = AGREE_METRES,
+               agree_relative: float = AGREE_RELATIVE) -> Votes:
+    """The votes of `views` on world `points` (N, 3): see the module doc; depths agree within
+    `agree_metres` + `agree_relative` x depth."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    seen = np.zeros(len(points), np.int32)
+    through = np.zeros(len(points), np.int32)
+    hidden = np.zeros(len(points), np.int32)
+    in_view = np.zeros(len(points), np.int32)
+    for view in views:
+        depth = np.asarray(view.depth)
+        h, w = depth.shape
+        ids, u, v, z = points_in_view(points, view.K, view.pose, (w, h))
+        in_view[ids] += 1
+        d = depth[np.floor(v).astype(np.int64), np.floor(u).astype(np.int64)].astype(np.float64)
+        valid = (d > 0) & np.isfinite(d)
+        ids, z, d = ids[valid], z[valid], d[valid]
+        margin = agree_metres + agree_relative * z
+        seen[ids[np.abs(d - z) <= margin]] += 1
+        through[ids[d > z + margin]] += 1
+        hidden[ids[d < z - margin]] += 1
+    return Votes(seen, through, hidden, in_view)
+
+
+def mesh_depth_views(mesh: Mesh, Ks: np.ndarray, poses: np.ndarray, image_size: tuple[int, int]) -> list[PlainDepthView]:
+    """The mesh's own depth maps from cameras (Ks (C, 3, 3) in pixels of `image_size` = (w, h), poses
+    (C, 4, 4)), at the occlusion test's resolution: the free space of a method without depth maps (the
+    mesh is all it knows; inf where the mesh is not hit casts no vote)."""
+    views = []
+    w, h = image_size
+    for K, pose in zip(Ks, poses):
+        depth = occlusion_depth(mesh, K, pose, (w, h))
+        dh, dw = depth.shape
+        views.append(PlainDepthView(depth, scale_intrinsics(np.asarray(K, np.float64), (w, h), (dw, dh)),
+                                    np.asarray(pose, np.float64)))
+    return views

@@ -1,0 +1,239 @@
+"""The room's structural planes (floor, ceiling, walls) found in a reconstructed surface.
+
+Gravity is known (world Z up), so the search is split as indoor layout methods split it:
+- floor and ceiling: area-weighted histograms of the height of the faces that face up (floor) or
+  down (ceiling); the floor is the lowest strong peak below the cameras, the ceiling the highest
+  above them (a table top is a smaller, higher peak).
+- walls: faces that face sideways vote with their normal's heading; the room's Manhattan frame is the
+  heading (mod 90 deg) that most wall area agrees with. Where it holds (most vertical area within
+  `MANHATTAN_TOLERANCE_DEG` of its four directions) those four directions are the walls' normals,
+  otherwise the strong peaks of the heading histogram are. Along each direction an area histogram of
+  position gives the candidate planes.
+- a candidate is a *wall* only if it bounds the room: little surface lies behind it across its span
+  (a cabinet front has the wall above it behind it) and the cameras are in front of it.
+
+Normals point into the room (toward free space and the cameras): a face's winding follows the
+reconstruction's normals (`engine.mesh_io.Mesh`). Everything is numpy: a million faces take about a
+second.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Optional
+
+import numpy as np
+
+FLOOR, CEILING, WALL = "floor", "ceiling", "wall"
+
+HORIZONTAL_COS = 0.9  # |n_z| above this: a face faces up or down (within 26 deg)
+VERTICAL_SIN = 0.35  # |n_z| below this: a face faces sideways (within 20 deg of vertical)
+HEADING_TOLERANCE_DEG = 20.0  # a wall face's heading within this of its wall's normal
+MANHATTAN_TOLERANCE_DEG = 15.0
+MANHATTAN_SHARE = 0.5  # of the vertical area within tolerance of the Manhattan directions: the frame holds
+HISTOGRAM_BIN = 0.02  # m
+PEAK_WINDOW = 0.06  # m either side of a peak: the area that supports it
+MIN_PLANE_AREA = 0.3  # m^2 of surface a structural plane needs
+MIN_WALL_HEIGHT = 0.8  # m: a wall's surface spans at least this height (a kitchen counter's front does not)
+BEHIND_MARGIN = 0.2  # m behind a candidate wall before surface counts as "behind" it
+MAX_BEHIND_SHARE = 0.35  # surface behind a wall across its span, as a share of the wall's own area
+
+
+@dataclass
+class StructuralPlane:
+    """A plane n . x = offset with unit `normal` (3,) pointing into the room; `kind` floor / ceiling /
+    wall; `area` the m^2 of surface that supports it; `axes` (2, 3) unit in-plane axes (u, v) with
+    u x v = normal (walls: u horizontal, v = +Z)."""
+
+    kind: str
+    normal: np.ndarray
+    offset: float
+    area: float
+    axes: np.ndarray = field(default_factory=lambda: np.zeros((2, 3)))
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(N,) signed distance of points (N, 3): positive in the room, negative behind the plane."""
+        return np.asarray(points, np.float64) @ self.normal - self.offset
+
+    def to_plane(self, points: np.ndarray) -> np.ndarray:
+        """(N, 2) in-plane coordinates (along u, v) of points (N, 3) projected onto the plane."""
+        return np.asarray(points, np.float64) @ self.axes.T
+
+    def from_plane(self, coords: np.ndarray) -> np.ndarray:
+        """(N, 3) world points on the plane at in-plane coordinates (N, 2)."""
+        return self.normal * self.offset + np.asarray(coords, np.float64) @ self.axes
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "normal": [round(float(x), 4) for x in self.normal],
+                "offset": round(float(self.offset), 4), "area_m2": round(float(self.area), 3)}
+
+
+def face_geometry(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(centroids (F, 3), areas (F,), unit normals (F, 3) following the winding), float64."""
+    v = np.asarray(vertices, np.float64)
+    a, b, c = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
+    cross = np.cross(b - a, c - a)
+    length = np.linalg.norm(cross, axis=1)
+    normals = cross / np.maximum(length, 1e-12)[:, None]
+    return (a + b + c) / 3.0, 0.5 * length, normals
+
+
+def _histogram_peaks(values: np.ndarray, weights: np.ndarray, min_weight: float) -> list[tuple[float, float]]:
+    """Peaks of the weighted histogram of `values` (N,): [(position, weight within PEAK_WINDOW)], strongest
+    first, each at least `min_weight` and 2 windows from any stronger one."""
+    if len(values) == 0:
+        return []
+    lo = float(values.min()) - 2 * PEAK_WINDOW
+    bins = int(np.ceil((float(values.max()) + 2 * PEAK_WINDOW - lo) / HISTOGRAM_BIN)) + 1
+    hist = np.bincount(((values - lo) / HISTOGRAM_BIN).astype(np.int64), weights, minlength=bins)
+    half = int(round(PEAK_WINDOW / HISTOGRAM_BIN))
+    window = np.convolve(hist, np.ones(2 * half + 1), mode="same")  # area within +-PEAK_WINDOW of each bin
+    peaks: list[tuple[float, float]] = []
+    for index in np.argsort(-window):
+        weight = float(window[index])
+        if weight < min_weight:
+            break
+        position = lo + (index + 0.5) * HISTOGRAM_BIN
+        if all(abs(position - p) > 2 * PEAK_WINDOW for p, _ in peaks):
+            peaks.append((position, weight))
+    return peaks
+
+
+def _refine_offset(values: np.ndarray, weights: np.ndarray, around: float) -> float:
+    """The area-weighted median of `values` within PEAK_WINDOW of `around`: the plane's offset."""
+    near = np.abs(values - around) <= PEAK_WINDOW
+    if not near.any():
+        return around
+    order = np.argsort(values[near])
+    cumulative = np.cumsum(weights[near][order])
+    return float(values[near][order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+
+
+def manhattan_heading(normals: np.ndarray, areas: np.ndarray) -> tuple[float, float]:
+    """(heading in radians in [0, pi/2), share of the area within MANHATTAN_TOLERANCE_DEG of the four
+    directions) of horizontal unit normals (N, 3) weighted by `areas` (N,)."""
+    if len(normals) == 0 or areas.sum() <= 0:
+        return 0.0, 0.0
+    theta = np.arctan2(normals[:, 1], normals[:, 0])
+    folded = np.degrees(np.mod(theta, np.pi / 2))  # 0..90
+    hist = np.bincount(np.minimum(folded.astype(np.int64), 89), areas, minlength=90)
+    spread = int(MANHATTAN_TOLERANCE_DEG // 2)
+    kernel = np.ones(2 * spread + 1)
+    circular = np.convolve(np.concatenate([hist[-spread:], hist, hist[:spread]]), kernel, mode="valid")
+    heading = np.radians((int(np.argmax(circular)) + 0.5) % 90)
+    for _ in range(3):  # the circular mean of 4 x heading near the peak: symmetric noise cancels
+        offset = np.mod(theta - heading + np.pi / 4, np.pi / 2) - np.pi / 4  # from the nearest direction
+        near = np.abs(offset) <= np.radians(MANHATTAN_TOLERANCE_DEG)
+        if not near.any():
+            break
+        heading = heading + np.angle(np.sum(areas[near] * np.exp(4j * offset[near]))) / 4
+    return float(np.mod(heading, np.pi / 2)), float(areas[near].sum() / areas.sum())
+
+
+def _wall_directions(normals: np.ndarray, areas: np.ndarray) -> tuple[list[np.ndarray], float, bool]:
+    """Candidate wall normals (unit, horizontal), the Manhattan heading and whether the frame holds."""
+    heading, share = manhattan_heading(normals, areas)
+    if share >= MANHATTAN_SHARE:
+        return [np.array([np.cos(heading + k * np.pi / 2), np.sin(heading + k * np.pi / 2), 0.0]) for k in range(4)], heading, True
+    theta = np.degrees(np.mod(np.arctan2(normals[:, 1], normals[:, 0]), 2 * np.pi))
+    hist = np.bincount(np.minimum(theta.astype(np.int64), 359), areas, minlength=360)
+    window = np.convolve(np.concatenate([hist[-10:], hist, hist[:10]]), np.ones(21), mode="valid")
+    directions: list[float] = []
+    for index in np.argsort(-window):
+        if window[index] < 0.1 * areas.sum():
+            break
+        if all(min(abs(index - d), 360 - abs(index - d)) > 30 for d in directions):
+            directions.append(float(index))
+    return [np.array([np.cos(np.radians(d + 0.5)), np.sin(np.radians(d + 0.5)), 0.0]) for d in directions], heading, False
+
+
+def _heading_from_positions(centroids: np.ndarray, areas: np.ndarray, normals: np.ndarray, vertical: np.ndarray,
+                            directions: list[np.ndarray], heading: float) -> float:
+    """The Manhattan heading refined from where the wall surfaces lie: per direction, the faces of its
+    strongest position peak give a line (the principal axis of their xy positions); the lines' headings
+    (mod 90 deg) are averaged by area."""
+    votes = []
+    cos_tolerance = np.cos(np.radians(HEADING_TOLERANCE_DEG))
+    for direction in directions:
+        facing = vertical & (normals @ direction > cos_tolerance)
+        position = centroids[facing] @ direction
+        peaks = _histogram_peaks(position, areas[facing], MIN_PLANE_AREA)
+        if not peaks:
+            continue
+        near = np.abs(position - peaks[0][0]) <= PEAK_WINDOW
+        xy, weight = centroids[facing][near, :2], areas[facing][near]
+        if weight.sum() <= 0 or len(xy) < 10:
+            continue
+        centred = xy - np.average(xy, axis=0, weights=weight)
+        _, vectors = np.linalg.eigh((centred * weight[:, None]).T @ centred)
+        tangent = vectors[:, 1]  # the largest spread: along the wall
+        votes.append((np.arctan2(tangent[1], tangent[0]), weight.sum()))
+    if not votes:
+        return heading
+    angles, weights = np.array([a for a, _ in votes]), np.array([w for _, w in votes])
+    offset = np.mod(angles - heading + np.pi / 4, np.pi / 2) - np.pi / 4
+    return float(np.mod(heading + np.angle(np.sum(weights * np.exp(4j * offset))) / 4, np.pi / 2))
+
+
+def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centres: np.ndarray,
+                           min_area: float = MIN_PLANE_AREA) -> tuple[list[StructuralPlane], dict]:
+    """Floor, ceiling and walls of a room mesh (vertices (V, 3) world metres Z up, faces (F, 3) wound
+    toward free space) seen from cameras at `camera_centres` (C, 3).
+
+    Returns (planes, info): planes floor first, then ceiling, then walls; info the Manhattan heading
+    (degrees) and whether it holds."""
+    centroids, areas, normals = face_geometry(vertices, faces)
+    cameras = np.asarray(camera_centres, np.float64).reshape(-1, 3)
+    low, high = (float(cameras[:, 2].min()), float(cameras[:, 2].max())) if len(cameras) else (np.inf, -np.inf)
+    vertical = np.abs(normals[:, 2]) < VERTICAL_SIN
+    horizontal_normals = normals[vertical, :2]
+    horizontal_normals = horizontal_normals / np.maximum(np.linalg.norm(horizontal_normals, axis=1, keepdims=True), 1e-12)
+    wall_normals = np.concatenate([horizontal_normals, np.zeros((len(horizontal_normals), 1))], axis=1)
+    directions, heading, manhattan = _wall_directions(wall_normals, areas[vertical])
+    if manhattan:  # face normals of a noisy surface lean; the walls' positions do not
+        heading = _heading_from_positions(centroids, areas, normals, vertical, directions, heading)
+        directions = [np.array([np.cos(heading + k * np.pi / 2), np.sin(heading + k * np.pi / 2), 0.0]) for k in range(4)]
+    u_floor = np.array([np.cos(heading), np.sin(heading), 0.0])
+    planes: list[StructuralPlane] = []
+
+    up = normals[:, 2] > HORIZONTAL_COS
+    floor_peaks = [p for p in _histogram_peaks(centroids[up, 2], areas[up], min_area) if p[0] < low - 0.3]
+    if floor_peaks:
+        z, weight = min(floor_peaks)
+        offset = _refine_offset(centroids[up, 2], areas[up], z)
+        planes.append(StructuralPlane(FLOOR, np.array([0.0, 0.0, 1.0]), offset, weight,
+                                      np.stack([u_floor, np.cross([0.0, 0.0, 1.0], u_floor)])))
+    down = normals[:, 2] < -HORIZONTAL_COS
+    ceiling_peaks = [p for p in _histogram_peaks(centroids[down, 2], areas[down], min_area) if p[0] > high + 0.1]
+    if ceiling_peaks:
+        z, weight = max(ceiling_peaks)
+        offset = _refine_offset(centroids[down, 2], areas[down], z)
+        # n = -Z, so n . x = -z: the offset is -height; u x v must be -Z.
+        planes.append(StructuralPlane(CEILING, np.array([0.0, 0.0, -1.0]), -offset, weight,
+                                      np.stack([u_floor, np.cross([0.0, 0.0, -1.0], u_floor)])))
+
+    z_lo = next((p.offset for p in planes if p.kind == FLOOR), float(centroids[:, 2].min()) if len(centroids) else 0.0)
+    z_hi = next((-p.offset for p in planes if p.kind == CEILING), float(centroids[:, 2].max()) if len(centroids) else 0.0)
+    cos_tolerance = np.cos(np.radians(HEADING_TOLERANCE_DEG))
+    for direction in directions:
+        facing = vertical & (normals @ direction > cos_tolerance)
+        position = centroids[facing] @ direction
+        u_axis = np.cross([0.0, 0.0, 1.0], direction)  # u x Z = direction
+        for peak, weight in _histogram_peaks(position, areas[facing], min_area):
+            offset = _refine_offset(position, areas[facing], peak)
+            near = np.abs(position - offset) <= PEAK_WINDOW
+            heights = centroids[facing][near, 2]
+            if np.percentile(heights, 98) - np.percentile(heights, 2) < MIN_WALL_HEIGHT:
+                continue
+            along = centroids[facing][near] @ u_axis
+            span = np.percentile(along, 1), np.percentile(along, 99)
+            all_along = centroids @ u_axis
+            behind = ((centroids @ direction < offset - BEHIND_MARGIN) & (all_along >= span[0]) & (all_along <= span[1])
+                      & (centroids[:, 2] >= z_lo) & (centroids[:, 2] <= z_hi))
+            if areas[behind].sum() > MAX_BEHIND_SHARE * weight:
+                continue  # furniture, or an inner wall with room behind it
+            if len(cameras) and np.median(cameras @ direction) < offset:
+                continue  # the cameras are behind it
+            planes.append(StructuralPlane(WALL, direction.copy(), offset, weight,
+                                          np.stack([u_axis, np.array([0.0, 0.0, 1.0])])))
+    return planes, {"heading_deg": round(float(np.degrees(heading)), 2), "manhattan": bool(manhattan)}

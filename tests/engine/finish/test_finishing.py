@@ -1,0 +1,205 @@
+"""The finishing stage on a synthetic box room: planes found, surface flattened onto them, a hole in a
+wall closed where the views saw the wall, an open door (the views saw the next room through it) left
+open, a floater in free space dropped, furniture kept. Every expectation is computed from the room's
+own known geometry, not from the code under test."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from engine.finish.finishing import ADDED, FINISH_CLEAN, FINISH_OFF, FINISH_ROOM, finish_mesh
+from engine.finish.free_space import PlainDepthView, view_votes
+from engine.finish.planes import CEILING, FLOOR, WALL, find_structural_planes
+from engine.geometry.depth_render import render_depth
+from engine.mesh_io import Mesh
+from engine.meshops import face_pieces
+
+ROOM = np.array([4.0, 3.0, 2.5])  # x, y, z extent of the box room, metres; floor at z = 0
+DOOR = (1.2, 2.0, 0.0, 2.0)  # in the y = 3 wall: x from 1.2 to 2.0, z from 0 to 2.0 (open: the next room shows)
+HOLE = (1.0, 1.6, 0.8, 1.4)  # in the x = 4 wall: y 1.0..1.6, z 0.8..1.4 missing from the reconstruction only
+CABINET = (0.0, 0.8, 1.0, 2.0, 0.0, 0.9)  # x0, x1, y0, y1, z0, z1: furniture against the x = 0 wall
+STEP = 0.04
+
+
+def rectangle(origin, u, v, size_u, size_v, normal, step=STEP, skip=None):
+    """(vertices, faces) of a grid rectangle origin + s u + t v, wound so the face normal is `normal`;
+    `skip(s, t)` -> True drops the cell whose lower corner is (s, t)."""
+    origin, u, v = (np.asarray(a, float) for a in (origin, u, v))
+    ns, nt = int(round(size_u / step)), int(round(size_v / step))
+    s, t = np.meshgrid(np.arange(ns + 1) * step, np.arange(nt + 1) * step, indexing="ij")
+    vertices = origin + s.reshape(-1, 1) * u + t.reshape(-1, 1) * v
+    faces = []
+    for i in range(ns):
+        for j in range(nt):
+            if skip is not None and skip(i * step + step / 2, j * step + step / 2):
+                continue
+            a, b, c, d = i * (nt + 1) + j, (i + 1) * (nt + 1) + j, (i + 1) * (nt + 1) + j + 1, i * (nt + 1) + j + 1
+            faces += [(a, b, c), (a, c, d)]
+    faces = np.array(faces, np.int64).reshape(-1, 3)
+    if len(faces) and np.cross(u, v) @ np.asarray(normal, float) < 0:
+        faces = faces[:, ::-1]
+    return vertices, faces
+
+
+def merge(parts):
+    vertices, faces, offset = [], [], 0
+    for v, f in parts:
+        vertices.append(v)
+        faces.append(f + offset)
+        offset += len(v)
+    return np.concatenate(vertices), np.concatenate(faces)
+
+
+def box_parts(x0, x1, y0, y1, z0, z1, outward=True):
+    """The five visible sides (no bottom) of an axis box, normals outward."""
+    sign = 1 if outward else -1
+    return [
+        rectangle((x0, y0, z1), (1, 0, 0), (0, 1, 0), x1 - x0, y1 - y0, (0, 0, sign)),
+        rectangle((x0, y0, z0), (1, 0, 0), (0, 0, 1), x1 - x0, z1 - z0, (0, -sign, 0)),
+        rectangle((x0, y1, z0), (1, 0, 0), (0, 0, 1), x1 - x0, z1 - z0, (0, sign, 0)),
+        rectangle((x0, y0, z0), (0, 1, 0), (0, 0, 1), y1 - y0, z1 - z0, (-sign, 0, 0)),
+        rectangle((x1, y0, z0), (0, 1, 0), (0, 0, 1), y1 - y0, z1 - z0, (sign, 0, 0)),
+    ]
+
+
+def room_parts(with_hole: bool):
+    """The room's surfaces as (vertices, faces) parts, normals into the room. The door is open in both
+    the truth and the reconstruction; the hole only in the reconstruction (`with_hole`)."""
+    X, Y, Z = ROOM
+    in_door = lambda s, t: DOOR[0] <= s < DOOR[1] and DOOR[2] <= t < DOOR[3]
+    in_hole = lambda s, t: with_hole and HOLE[0] <= s < HOLE[1] and HOLE[2] <= t < HOLE[3]
+    parts = [
+        rectangle((0, 0, 0), (1, 0, 0), (0, 1, 0), X, Y, (0, 0, 1)),  # floor
+        rectangle((0, 0, Z), (1, 0, 0), (0, 1, 0), X, Y, (0, 0, -1)),  # ceiling
+        rectangle((0, 0, 0), (1, 0, 0), (0, 0, 1), X, Z, (0, 1, 0)),  # y = 0 wall
+        rectangle((0, Y, 0), (1, 0, 0), (0, 0, 1), X, Z, (0, -1, 0), skip=in_door),  # y = Y wall, with the door
+        rectangle((0, 0, 0), (0, 1, 0), (0, 0, 1), Y, Z, (1, 0, 0)),  # x = 0 wall
+        rectangle((X, 0, 0), (0, 1, 0), (0, 0, 1), Y, Z, (-1, 0, 0), skip=in_hole),  # x = X wall
+    ]
+    parts += box_parts(*CABINET)
+    return parts
+
+
+def truth_with_next_room():
+    """The true scene for the views: the room plus the next room's far wall 2 m behind the door (wide
+    enough that every ray through the door meets it)."""
+    parts = room_parts(with_hole=False)
+    parts.append(rectangle((-4.0, ROOM[1] + 2.0, -2.0), (1, 0, 0), (0, 0, 1), 12.0, 6.0, (0, -1, 0), step=0.1))
+    return merge(parts)
+
+
+def cameras():
+    """(K (3, 3), poses (C, 4, 4)): 12 cameras at 1.5 m on a small circle, looking out horizontally."""
+    K = np.array([[60.0, 0, 48], [0, 60.0, 36], [0, 0, 1]])
+    poses = []
+    centre = np.array([ROOM[0] / 2, ROOM[1] / 2, 1.5])
+    for k in range(12):
+        angle = 2 * np.pi * k / 12
+        forward = np.array([np.cos(angle), np.sin(angle), -0.3])
+        forward /= np.linalg.norm(forward)
+        right = np.cross(forward, [0, 0, 1.0])
+        right /= np.linalg.norm(right)
+        down = np.cross(forward, right)
+        pose = np.eye(4)
+        pose[:3, :3] = np.stack([right, down, forward], axis=1)
+        pose[:3, 3] = centre + 0.3 * np.array([np.cos(angle), np.sin(angle), 0])
+        poses.append(pose)
+    return K, np.stack(poses)
+
+
+@pytest.fixture(scope="module")
+def scene():
+    rng = np.random.default_rng(0)
+    vertices, faces = merge(room_parts(with_hole=True))
+    noisy = vertices + rng.normal(0, 0.01, vertices.shape)  # 1 cm of stereo noise
+    # A floater: a small sheet in the middle of the room's free space.
+    fv, ff = rectangle((1.6, 1.0, 1.0), (1, 0, 0), (0, 0, 1), 0.2, 0.2, (0, -1, 0))
+    noisy, faces = merge([(noisy, faces), (fv, ff)])
+    K, poses = cameras()
+    true_v, true_f = truth_with_next_room()
+    views = [PlainDepthView(render_depth(true_v, true_f, K, pose, (96, 72)), K, pose) for pose in poses]
+    mesh = Mesh(noisy.astype(np.float32), faces.astype(np.int32))
+    return mesh, views, poses[:, :3, 3]
+
+
+def test_planes_are_the_box(scene):
+    mesh, _, centres = scene
+    planes, info = find_structural_planes(mesh.vertices, mesh.faces, centres)
+    kinds = sorted(p.kind for p in planes)
+    assert kinds == sorted([FLOOR, CEILING, WALL, WALL, WALL, WALL])
+    floor = next(p for p in planes if p.kind == FLOOR)
+    ceiling = next(p for p in planes if p.kind == CEILING)
+    assert abs(floor.offset - 0.0) < 0.01 and abs(-ceiling.offset - ROOM[2]) < 0.01
+    walls = {tuple(np.round(p.normal, 1) + 0.0): p.offset for p in planes if p.kind == WALL}
+    for p in planes:  # Manhattan directions within 1 deg of the box's
+        assert np.abs(p.normal).max() > np.cos(np.radians(1.0))
+    # Inward normals: x = 0 wall has +x, offset 0; x = 4 wall has -x, offset -4; etc.
+    expected = {(1.0, 0.0, 0.0): 0.0, (-1.0, 0.0, 0.0): -ROOM[0], (0.0, 1.0, 0.0): 0.0, (0.0, -1.0, 0.0): -ROOM[1]}
+    assert set(walls) == set(expected)
+    for normal, offset in expected.items():
+        assert abs(walls[normal] - offset) < 0.01
+    assert info["manhattan"]
+
+
+def test_votes_see_through_the_door_not_the_wall(scene):
+    _, views, _ = scene
+    in_door = np.array([[1.6, ROOM[1], 1.0]])
+    on_wall = np.array([[3.0, ROOM[1], 1.0]])
+    door, wall = view_votes(in_door, views), view_votes(on_wall, views)
+    assert door.free()[0] and not wall.free()[0]
+    assert wall.seen[0] >= 1
+
+
+def _faces_near(mesh, point, radius):
+    centroids = mesh.vertices[mesh.faces].mean(axis=1)
+    return np.linalg.norm(centroids - np.asarray(point), axis=1) < radius
+
+
+def test_room_closes_the_hole_keeps_the_door_and_drops_the_floater(scene):
+    mesh, views, centres = scene
+    result = finish_mesh(mesh, views, centres, 0.04, FINISH_ROOM)
+    out = result.mesh
+    added = out.attributes[ADDED]
+    centroids = out.vertices[out.faces].mean(axis=1)
+    face_added = added[out.faces].min(axis=1) > 0.5
+    # The hole's centre now has wall faces, marked added, on the wall plane x = 4.
+    hole_centre = (ROOM[0], (HOLE[0] + HOLE[1]) / 2, (HOLE[2] + HOLE[3]) / 2)
+    at_hole = _faces_near(out, hole_centre, 0.15)
+    assert at_hole.any() and face_added[at_hole].all()
+    assert np.abs(centroids[at_hole, 0] - ROOM[0]).max() < 0.003
+    # The door stays open: no face within the opening's inner part.
+    door_centre = ((DOOR[0] + DOOR[1]) / 2, ROOM[1], 1.0)
+    assert not _faces_near(out, door_centre, 0.25).any()
+    # The floater is gone, the cabinet's top stays where it was.
+    assert not _faces_near(out, (1.7, 1.0, 1.1), 0.12).any()
+    top = (0.4, 1.5, CABINET[5])
+    assert _faces_near(out, top, 0.1).any()
+    # Flattened: every face on the wall lies on it within 3 mm (the noise was 1 cm).
+    on_x4 = ((np.abs(centroids[:, 0] - ROOM[0]) < 0.06) & (centroids[:, 1] > 0.1) & (centroids[:, 1] < ROOM[1] - 0.1)
+             & (centroids[:, 2] > 0.1) & (centroids[:, 2] < ROOM[2] - 0.1))  # away from the corners
+    assert np.abs(centroids[on_x4, 0] - ROOM[0]).max() < 0.003
+    # Seen faces are not marked added: the floor's observed cells are 0.
+    floor_faces = np.abs(centroids[:, 2]) < 0.003
+    assert (~face_added[floor_faces]).mean() > 0.8
+
+
+def test_clean_flattens_and_adds_nothing(scene):
+    mesh, views, centres = scene
+    result = finish_mesh(mesh, views, centres, 0.04, FINISH_CLEAN)
+    out = result.mesh
+    assert not (out.attributes[ADDED] > 0).any()
+    centroids = out.vertices[out.faces].mean(axis=1)
+    near_floor = ((np.abs(centroids[:, 2]) < 0.05) & (centroids[:, 0] > 0.1) & (centroids[:, 0] < ROOM[0] - 0.1)
+                  & (centroids[:, 1] > 0.1) & (centroids[:, 1] < ROOM[1] - 0.1)
+                  & ((centroids[:, 0] > CABINET[1] + 0.1) | (centroids[:, 1] < CABINET[2] - 0.1)
+                     | (centroids[:, 1] > CABINET[3] + 0.1)))  # the cabinet's sides are not pulled onto the floor
+    assert near_floor.sum() > 1000 and np.abs(centroids[near_floor, 2]).max() < 0.003
+    assert not _faces_near(out, (1.7, 1.0, 1.1), 0.12).any()  # the floater
+    hole_centre = (ROOM[0], (HOLE[0] + HOLE[1]) / 2, (HOLE[2] + HOLE[3]) / 2)
+    assert not _faces_near(out, hole_centre, 0.15).any()  # clean adds nothing
+
+
+def test_off_returns_the_mesh(scene):
+    mesh, views, centres = scene
+    assert finish_mesh(mesh, views, centres, 0.04, FINISH_OFF).mesh is mesh
