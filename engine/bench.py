@@ -42,6 +42,13 @@ import numpy
 import torch
 
 from .capture import load_capture
+from .eval.stereo_depth import KEYS as DEPTH_KEYS, compare_depth, true_depth_at
+from .poses.prepare import SFM_NEVER, prepare_capture
+from .recon.plan import plan_reconstruction, posed_frames
+from .recon.stereo_fusion import stereo_options
+from .stereo import stage_clock
+from .stereo.depth_maps import estimate_depth_maps
+from .stereo.options import MATCHER_PATCHMATCH
 from .model.config import StereoEvidenceConfig, VortxConfig
 from .model.vortx import VortxNet
 from .recon.driver import reconstruct, run_reconstruction
@@ -106,6 +113,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default %(default)s)")
     parser.add_argument("--evidence-weights", type=Path, default=None,
                         help="weights of the learned method with stereo evidence (default: untrained, the recipe's widths)")
+    parser.add_argument("--patchmatch-profile", type=Path, default=None, metavar="ROOM",
+                        help="instead of the benchmark: CPU seconds per keyframe of each PatchMatch stage (one thread) "
+                             "and the depth maps against the room's true depth, on a few consecutive keyframes of ROOM "
+                             "(a room folder with true depth, its poses as given)")
+    parser.add_argument("--profile-sizes", type=int, nargs="+", default=[160, 320], help="stereo long sides profiled")
+    parser.add_argument("--profile-references", type=int, default=5, help="consecutive keyframes profiled")
+    parser.add_argument("--profile-first", type=int, default=0, help="the first keyframe profiled")
+    parser.add_argument("--profile-set", nargs="*", default=[], metavar="FIELD=VALUE",
+                        help="StereoOptions fields changed for the profile (e.g. coarse_iterations=2)")
 
 
 def machine_info() -> dict[str, Any]:
@@ -395,7 +411,81 @@ def markdown(report: dict[str, Any]) -> str:
     return "\n".join(lines)
 
 
+def _option_value(text: str) -> Any:
+    """A --profile-set value: an int, a float, a bool or a string."""
+    for parse in (int, float):
+        try:
+            return parse(text)
+        except ValueError:
+            pass
+    return {"true": True, "false": False}.get(text.lower(), text)
+
+
+def patchmatch_profile(room: Path, size: int, references: int, first: int = 0,
+                       overrides: Optional[dict[str, Any]] = None) -> dict[str, Any]:
+    """PatchMatch on keyframes first .. first + references - 1 of `room` (poses as given) at a stereo long
+    side of `size`, with one torch thread: CPU seconds per keyframe of every stage (stage_clock.py), in
+    all and of the depth filter, and the mean depth-map metrics of `engine eval-depth` over those maps."""
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # CPU seconds of one thread: the shared machine's load does not change them
+    try:
+        capture = prepare_capture(load_capture(room), sfm=SFM_NEVER).capture
+        settings = ReconSettings(method="stereo", stereo_matcher=MATCHER_PATCHMATCH, stereo_image_size=size)
+        plan = plan_reconstruction(capture, settings)
+        options = replace(stereo_options(settings, torch.device("cpu")), **(overrides or {}))
+        usable, _ = posed_frames(capture)
+        frames = [capture.frames[i] for i in usable]
+        poses = numpy.stack([f.pose for f in frames]).astype(numpy.float64)
+        position = {frame_id: p for p, frame_id in enumerate(usable)}
+        chosen = list(range(first, min(first + references, len(plan.keyframes))))
+        refs = [position[plan.keyframe_ids[k]] for k in chosen]
+        points = capture.points if capture.points is not None and len(capture.points) else None
+        stages: dict[str, float] = {}
+        wall: dict[str, float] = {}
+        started = time.process_time()
+        with stage_clock.collecting(stages):
+            maps = estimate_depth_maps(frames, poses, refs, options, points=points,
+                                       bounds=(plan.bounds.minimum, plan.bounds.maximum), stages=wall)
+        total = time.process_time() - started
+    finally:
+        torch.set_num_threads(threads)
+    rows = [compare_depth(m.depth, m.confidence, true_depth_at(frames[m.frame], (m.depth.shape[1], m.depth.shape[0])), m.K)
+            for m in maps]
+    n = max(1, len(maps))
+    return {"room": str(room), "size": size, "keyframes": len(maps), "image_size": list(maps[0].depth.shape[::-1]) if maps else None,
+            "overrides": overrides or {}, "cpu_s_per_keyframe": total / n,
+            "stages_cpu_s_per_keyframe": {k: v / n for k, v in sorted(stages.items())},
+            "depth filter_s_per_keyframe": wall.get("depth filter", 0.0) / n,
+            "quality": {k: float(numpy.nanmean([r[k] for r in rows])) for k in DEPTH_KEYS}}
+
+
+def profile_markdown(profiles: list[dict[str, Any]]) -> str:
+    """The profiles as one table: a row per stage, a column per run."""
+    names = sorted({k for p in profiles for k in p["stages_cpu_s_per_keyframe"]},
+                   key=lambda k: (k.startswith("geometric pass/"), k))
+    head = ["stage (CPU s per keyframe, 1 thread)"] + [
+        f"{p['image_size'][0]}x{p['image_size'][1]}" + "".join(f" {k}={v}" for k, v in p["overrides"].items()) for p in profiles]
+    lines = ["| " + " | ".join(head) + " |", "|---" * len(head) + "|"]
+    for name in names:
+        lines.append(f"| {name} | " + " | ".join(f"{p['stages_cpu_s_per_keyframe'].get(name, 0.0):.3f}" for p in profiles) + " |")
+    lines.append("| **total** | " + " | ".join(f"**{p['cpu_s_per_keyframe']:.2f}**" for p in profiles) + " |")
+    for key in DEPTH_KEYS:
+        lines.append(f"| {key} | " + " | ".join(f"{p['quality'][key]:.3f}" for p in profiles) + " |")
+    return "\n".join(lines)
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.patchmatch_profile is not None:
+        overrides = dict((k, _option_value(v)) for k, v in (item.split("=", 1) for item in args.profile_set))
+        profiles = []
+        for size in args.profile_sizes:
+            print(f"profiling PatchMatch at {size} px ...", file=sys.stderr, flush=True)
+            profiles.append(patchmatch_profile(args.patchmatch_profile, size, args.profile_references, args.profile_first,
+                                               overrides))
+        print(profile_markdown(profiles))
+        if args.out is not None:
+            args.out.write_text(json.dumps(profiles, indent=1))
+        return 0
     cases = QUICK_CASES if args.quick else FULL_CASES
     report: dict[str, Any] = {"machine": machine_info(), "quick": bool(args.quick), "image_size": list(IMAGE_SIZE), "runs": []}
     started = time.perf_counter()

@@ -27,6 +27,7 @@ from torch import Tensor
 
 from ..jobs import CancelToken, check
 from .plane_cost import MAX_COST, ReferenceWindows, SourceViews, plane_costs, plane_depth, random_normals
+from .stage_clock import stage
 
 # The 8 propagation areas (dv, du) of ACMM: every offset has an odd |dv| + |du|, so it lies on the
 # other colour of the checkerboard.
@@ -215,10 +216,14 @@ def patchmatch_iterations(state: PlaneState, ref: ReferenceWindows, sources: Sou
     for t in range(first_iteration, first_iteration + iterations):
         for pixels in colours:
             check(cancel)
-            depths, normals = _propagation_candidates(state, ref, pixels)
-            _update(state, ref, sources, pixels, depths, normals, t, geometric_weight, reselect_views=True)
-            depths, normals = _refinement_candidates(state, ref, pixels, t, depth_range, generator)
-            _update(state, ref, sources, pixels, depths, normals, t, geometric_weight, reselect_views=False)
+            with stage("propagation"):
+                depths, normals = _propagation_candidates(state, ref, pixels)
+            with stage("selection"):
+                _update(state, ref, sources, pixels, depths, normals, t, geometric_weight, reselect_views=True)
+            with stage("refinement"):
+                depths, normals = _refinement_candidates(state, ref, pixels, t, depth_range, generator)
+            with stage("selection"):
+                _update(state, ref, sources, pixels, depths, normals, t, geometric_weight, reselect_views=False)
     return state
 
 

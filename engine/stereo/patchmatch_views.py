@@ -30,6 +30,7 @@ from ..geometry.cameras import scale_intrinsics
 from ..jobs import CancelToken, ProgressCallback, check, report
 from .patchmatch import PlaneState, initial_state, patchmatch_iterations, rescore, upsample_planes
 from .plane_cost import MAX_COST, ReferenceWindows, SourceViews
+from .stage_clock import phase, stage
 
 # An image source: (position) -> (grey (h, w) float32 tensor at the finest stereo size, K (3, 3) for it).
 ImageSource = Callable[[int], tuple[Tensor, np.ndarray]]
@@ -148,18 +149,21 @@ def photometric_planes(
         scaled_K = scale_intrinsics(K, (W, H), (size[1], size[0]))
         ref = ReferenceWindows(_resize(image, size).to(device), torch.as_tensor(scaled_K, dtype=torch.float32, device=device),
                                schedule.window)
-        sources = _source_views(source_images, source_Ks, pose, source_poses, size, device)
+        with stage("sources"):
+            sources = _source_views(source_images, source_Ks, pose, source_poses, size, device)
         if state is None:
             depth = normal = None
             if initial_depth is not None:
                 start = torch.as_tensor(initial_depth, dtype=torch.float32)[None, None]
                 depth = F.interpolate(start, size=size, mode="nearest").reshape(-1).to(device)
                 normal = _fronto_normals(ref.rays)
-            state = initial_state(ref, sources, depth_range, generator, depth, normal)
+            with stage("initialisation"):
+                state = initial_state(ref, sources, depth_range, generator, depth, normal)
             count = schedule.coarse_iterations
         else:
-            depth, normal = upsample_planes(state, previous_size, ref)
-            state = initial_state(ref, sources, depth_range, generator, depth, normal)
+            with stage("initialisation"):
+                depth, normal = upsample_planes(state, previous_size, ref)
+                state = initial_state(ref, sources, depth_range, generator, depth, normal)
             count = schedule.fine_iterations
         patchmatch_iterations(state, ref, sources, depth_range, count, generator, first_iteration=iteration, cancel=cancel)
         iteration += count
@@ -176,8 +180,10 @@ def geometric_refinement(
 ) -> PlaneState:
     """`state` rescored and refined with the geometric term against the sources' depth maps."""
     generator = torch.Generator(device=device).manual_seed(schedule.seed + 1 + first_iteration)
-    sources = _source_views(source_images, source_Ks, pose, source_poses, (ref.height, ref.width), device, source_depths)
-    rescore(state, ref, sources, schedule.geometric_weight, first_iteration)
+    with stage("sources"):
+        sources = _source_views(source_images, source_Ks, pose, source_poses, (ref.height, ref.width), device, source_depths)
+    with stage("initialisation"):
+        rescore(state, ref, sources, schedule.geometric_weight, first_iteration)
     return patchmatch_iterations(state, ref, sources, depth_range, schedule.geometric_iterations, generator,
                                  schedule.geometric_weight, first_iteration, cancel)
 
@@ -186,10 +192,12 @@ def photometric_cost(state: PlaneState, ref: ReferenceWindows, pose: np.ndarray,
                      source_Ks: Sequence[np.ndarray], source_poses: Sequence[np.ndarray], device: torch.device,
                      iteration: int) -> Tensor:
     """(HW,) the planes' photometric cost alone (the geometric term left out), view-weighted."""
-    sources = _source_views(source_images, source_Ks, pose, source_poses, (ref.height, ref.width), device)
+    with stage("sources"):
+        sources = _source_views(source_images, source_Ks, pose, source_poses, (ref.height, ref.width), device)
     scored = PlaneState(state.depth, state.normal, state.costs.clone(), state.cost.clone(), state.view_weights.clone())
     scored._rays = state._rays
-    return rescore(scored, ref, sources, 0.0, iteration).cost
+    with stage("final photometric cost"):
+        return rescore(scored, ref, sources, 0.0, iteration).cost
 
 
 def patchmatch_views(
@@ -223,25 +231,26 @@ def patchmatch_views(
     position = {int(r): i for i, r in enumerate(references)}
     iteration = schedule.coarse_iterations + (schedule.scales - 1) * schedule.fine_iterations
     for p in range(schedule.geometric_passes):
-        last = p == schedule.geometric_passes - 1
-        depths = [k.depth.reshape(k.size) for k in kept]  # the previous pass's maps: the result ignores the order of views
-        for done, r in enumerate(references):
-            report(progress, "patchmatch", len(references) * (1 + p) + done, steps)
-            img, K = image(r)
-            ref = ReferenceWindows(img.to(device), torch.as_tensor(K, dtype=torch.float32, device=device), schedule.window)
-            state = kept[done].restore(ref, device)
-            srcs = list(sources_of(r))
-            source_images, source_Ks, source_poses = [image(s)[0] for s in srcs], [image(s)[1] for s in srcs], [poses[s] for s in srcs]
-            source_depths = [depths[position[s]] if s in position else None for s in srcs]
-            geometric_refinement(state, ref, poses[r], source_images, source_Ks, source_poses, source_depths,
-                                 depth_ranges[done], schedule, device, iteration, cancel)
-            if last:  # the filter judges the photometric cost alone
-                cost = photometric_cost(state, ref, poses[r], source_images, source_Ks, source_poses, device,
-                                        iteration + schedule.geometric_iterations)
-                maps[done] = _plane_map(state, ref, cost)
-            else:
-                kept[done] = _KeptPlanes.of(state, ref)
-        iteration += schedule.geometric_iterations
+        with phase("geometric pass"):
+            last = p == schedule.geometric_passes - 1
+            depths = [k.depth.reshape(k.size) for k in kept]  # the previous pass's maps: the result ignores the order of views
+            for done, r in enumerate(references):
+                report(progress, "patchmatch", len(references) * (1 + p) + done, steps)
+                img, K = image(r)
+                ref = ReferenceWindows(img.to(device), torch.as_tensor(K, dtype=torch.float32, device=device), schedule.window)
+                state = kept[done].restore(ref, device)
+                srcs = list(sources_of(r))
+                source_images, source_Ks, source_poses = [image(s)[0] for s in srcs], [image(s)[1] for s in srcs], [poses[s] for s in srcs]
+                source_depths = [depths[position[s]] if s in position else None for s in srcs]
+                geometric_refinement(state, ref, poses[r], source_images, source_Ks, source_poses, source_depths,
+                                     depth_ranges[done], schedule, device, iteration, cancel)
+                if last:  # the filter judges the photometric cost alone
+                    cost = photometric_cost(state, ref, poses[r], source_images, source_Ks, source_poses, device,
+                                            iteration + schedule.geometric_iterations)
+                    maps[done] = _plane_map(state, ref, cost)
+                else:
+                    kept[done] = _KeptPlanes.of(state, ref)
+            iteration += schedule.geometric_iterations
     report(progress, "patchmatch", steps, steps)
     stages["geometric consistency"] = time.perf_counter() - started
     assert all(m is not None for m in maps)

@@ -30,6 +30,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor
 
+from .stage_clock import stage
+
 MAX_COST = 2.0  # 1 - NCC of a source that cannot see the plane (NCC -1: the worst match)
 WINDOW_STEP = 2  # window pixels sampled every 2nd pixel
 SIGMA_SPATIAL = 5.0  # pixels: the bilateral weight's spatial falloff (COLMAP: 5)
@@ -58,6 +60,10 @@ class ReferenceWindows:
     bilateral weights of every pixel's window, and the rays through the pixel centres."""
 
     def __init__(self, image: Tensor, K: Tensor, window: int):
+        with stage("windows"):
+            self._build(image, K, window)
+
+    def _build(self, image: Tensor, K: Tensor, window: int) -> None:
         if window < 3 or window % 2 == 0:
             raise ValueError(f"window must be odd and >= 3, got {window}")
         H, W = image.shape
@@ -127,38 +133,42 @@ def plane_costs(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor, dep
     centre = M // 2
     out = torch.empty((C, S, N), dtype=dtype, device=rays.device)
     for c in range(C):
-        normal, depth = normals[c], depths[c]
-        facing = (normal * rays).sum(-1)  # n . ray (negative: the normal faces the camera)
-        valid = (depth > 0) & (-facing / rays.norm(dim=-1) > MIN_GRAZING_COS)
-        depth = torch.where(valid, depth, torch.ones_like(depth))
-        rho = torch.where(valid, depth * facing, -torch.ones_like(facing))  # the plane n . X = rho
-        # The plane's homography for the window offset (du, dv) from the pixel centre, in the source's
-        # grid_sample coordinates: p = a du + b dv + c with a = G k0 + g (n . k0) / rho,
-        # b = G k1 + g (n . k1) / rho, c = G ray + g / d, where G = T K_s R, g = T K_s t, k0 and k1 the
-        # first columns of K^-1 and T maps pixels to [-1, 1]: one matrix product for every sample.
-        columns = torch.stack([Gk0 + g[:, None, :] * ((normal @ k0) / rho)[None, :, None],
-                               Gk1 + g[:, None, :] * ((normal @ k1) / rho)[None, :, None],
-                               G_rays + g[:, None, :] / depth[None, :, None]], dim=-1)  # (S, N, 3 coords, 3 columns)
-        projected = (columns.reshape(-1, 3) @ offsets).reshape(S, N, 3, M)
-        z = projected[:, :, 2:3]
-        in_front = z[:, :, 0, centre] > 1e-6
-        grid = torch.empty((S, N, M, 2), dtype=dtype, device=rays.device)
-        torch.div(projected[:, :, :2], z.clamp_min(1e-6), out=grid.permute(0, 1, 3, 2))
-        sampled = F.grid_sample(sources.images[:, None], grid, mode="bilinear", padding_mode="border",
-                                align_corners=False)[:, 0]  # (S, N, M)
-        weighted = sampled * weights
-        mean_s = weighted.sum(-1)
-        var_s = (weighted * sampled).sum(-1) - mean_s ** 2
-        cov = (sampled * weighted_centred).sum(-1)
-        ncc = cov / (variance * var_s.clamp_min(0)).sqrt().clamp_min(1e-9)
-        centre_grid = grid[:, :, centre]  # (S, N, 2)
-        sees = in_front & (centre_grid.abs() <= 1.0).all(-1) & valid & (var_s > MIN_SOURCE_VARIANCE)
-        cost = torch.where(sees, 1.0 - ncc.clamp(-1.0, 1.0), torch.full_like(ncc, MAX_COST))
+        with stage("warp"):
+            normal, depth = normals[c], depths[c]
+            facing = (normal * rays).sum(-1)  # n . ray (negative: the normal faces the camera)
+            valid = (depth > 0) & (-facing / rays.norm(dim=-1) > MIN_GRAZING_COS)
+            depth = torch.where(valid, depth, torch.ones_like(depth))
+            rho = torch.where(valid, depth * facing, -torch.ones_like(facing))  # the plane n . X = rho
+            # The plane's homography for the window offset (du, dv) from the pixel centre, in the source's
+            # grid_sample coordinates: p = a du + b dv + c with a = G k0 + g (n . k0) / rho,
+            # b = G k1 + g (n . k1) / rho, c = G ray + g / d, where G = T K_s R, g = T K_s t, k0 and k1 the
+            # first columns of K^-1 and T maps pixels to [-1, 1]: one matrix product for every sample.
+            columns = torch.stack([Gk0 + g[:, None, :] * ((normal @ k0) / rho)[None, :, None],
+                                   Gk1 + g[:, None, :] * ((normal @ k1) / rho)[None, :, None],
+                                   G_rays + g[:, None, :] / depth[None, :, None]], dim=-1)  # (S, N, 3 coords, 3 columns)
+            projected = (columns.reshape(-1, 3) @ offsets).reshape(S, N, 3, M)
+            z = projected[:, :, 2:3]
+            in_front = z[:, :, 0, centre] > 1e-6
+            grid = torch.empty((S, N, M, 2), dtype=dtype, device=rays.device)
+            torch.div(projected[:, :, :2], z.clamp_min(1e-6), out=grid.permute(0, 1, 3, 2))
+        with stage("sampling"):
+            sampled = F.grid_sample(sources.images[:, None], grid, mode="bilinear", padding_mode="border",
+                                    align_corners=False)[:, 0]  # (S, N, M)
+        with stage("NCC"):
+            weighted = sampled * weights
+            mean_s = weighted.sum(-1)
+            var_s = (weighted * sampled).sum(-1) - mean_s ** 2
+            cov = (sampled * weighted_centred).sum(-1)
+            ncc = cov / (variance * var_s.clamp_min(0)).sqrt().clamp_min(1e-9)
+            centre_grid = grid[:, :, centre]  # (S, N, 2)
+            sees = in_front & (centre_grid.abs() <= 1.0).all(-1) & valid & (var_s > MIN_SOURCE_VARIANCE)
+            cost = torch.where(sees, 1.0 - ncc.clamp(-1.0, 1.0), torch.full_like(ncc, MAX_COST))
         if sources.depths is not None:
-            u0 = (centre_grid[..., 0] + 1.0) * (w / 2.0)
-            v0 = (centre_grid[..., 1] + 1.0) * (h / 2.0)
-            error = reprojection_error(ref, sources, pixels, depth, u0, v0, in_front)
-            cost = torch.where(sees, cost + geometric_weight * error, torch.full_like(cost, worst))
+            with stage("geometric term"):
+                u0 = (centre_grid[..., 0] + 1.0) * (w / 2.0)
+                v0 = (centre_grid[..., 1] + 1.0) * (h / 2.0)
+                error = reprojection_error(ref, sources, pixels, depth, u0, v0, in_front)
+                cost = torch.where(sees, cost + geometric_weight * error, torch.full_like(cost, worst))
         out[c] = cost
     return out
 
