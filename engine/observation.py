@@ -14,6 +14,9 @@ OBSERVATIONS = "observations"
 STEREO_CONFIDENCE = "stereo_confidence"
 COMPLETED = "completed"
 EVIDENCE_ATTRIBUTES = (OBSERVATIONS, STEREO_CONFIDENCE, COMPLETED)
+# 1 on the faces the finishing stage added where no photo saw surface (engine/finish: a wall behind a
+# wardrobe, a stereo gap in a plain wall closed), 0 on seen surface: the artist can select and delete them.
+ADDED = "added"
 
 # The colour an artist sees: red where few views or weak matches saw the surface, green where it is
 # well observed. A vertex seen by this many depth maps with this confidence counts as fully observed.

@@ -28,13 +28,12 @@ import numpy as np
 from scipy import ndimage
 
 from ..mesh_io import Mesh
+from ..observation import ADDED  # vertex attribute: 1 on faces the finishing added (not seen), 0 elsewhere
 from ..meshops import compact, face_pieces, keep_faces, vertex_normals
+from .modes import FINISH_CLEAN, FINISH_MODES, FINISH_OFF, FINISH_ROOM
 from .free_space import DepthView, Votes, view_votes
 from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_structural_planes
 
-FINISH_OFF, FINISH_CLEAN, FINISH_ROOM = "off", "clean", "room"
-FINISH_MODES = (FINISH_OFF, FINISH_CLEAN, FINISH_ROOM)
-ADDED = "added"  # vertex attribute: 1 on faces the finishing added (not seen), 0 elsewhere
 
 SNAP_DISTANCE = 0.6  # m: a plane's observed end this near a neighbouring wall is taken to that wall
 SUPPORTED_SHARE = 0.3  # of a piece's vertices seen by `min_views` views: the piece is supported

@@ -12,7 +12,9 @@ on held-out photos the footprint-weighted blend beat favouring the best view, wh
 lands a little off wherever poses or geometry are; options.py has the numbers). The weights change
 smoothly over the surface, so view changes and chart borders do not step. A texel's weights depend on its 3D point only, so both
 sides of a chart seam (the same surface points) get the same colour: the seams are levelled by
-construction. Texels no photo sees take the mesh's vertex colours. Gutters around the charts are
+construction. Texels no photo sees take the mesh's vertex colours, except on faces the finishing stage
+added (engine/finish, the ADDED attribute: a wall behind a wardrobe), which take the colour of the
+seen texels nearest them on the same plane (`neighbourhood_colours`). Gutters around the charts are
 filled with their border colours, so bilinear filtering and mipmaps do not pull in black.
 """
 
@@ -31,6 +33,7 @@ from ..geometry.depth_render import NEAR_PLANE
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..mesh_io import Mesh
 from ..meshops import vertex_normals
+from ..observation import ADDED
 from ..photo_sampling import UNSEEN_GREY, occlusion_depth, sample_bilinear, visible_points
 from .atlas import uv_atlas
 from .exposure import ViewSamples, exposure_gains
@@ -41,6 +44,11 @@ from .views import TextureView, sharpness, sharpness_weights
 
 BORDER_RAMP = 0.05  # share of a photo's short side over which its weight fades out at the picture's edge
 TEXELS_PER_CHUNK = 1_000_000  # bounds each photo's per-texel temporaries to ~100 MB
+# Added faces (engine/finish) no photo saw take their colour from the seen texels nearest on their plane.
+NORMAL_METRES = 1.0  # m of distance a unit of normal difference counts as (a wall and the floor are 1.4 apart)
+NEIGHBOURS = 16  # the median of this many seen texels
+EDGE_MARGIN = 0.04  # m: seen texels this near unseen ones are not sources (an occluder's colour bleeds there)
+NEIGHBOUR_SAMPLES = 400_000
 
 
 def border_ramp(u: np.ndarray, v: np.ndarray, size: tuple[int, int]) -> np.ndarray:
@@ -120,6 +128,50 @@ def faces_in_view(mesh: Mesh, view: TextureView) -> np.ndarray:
     return in_front[mesh.faces].any(axis=1) & ~beyond
 
 
+def added_texels(mesh: Mesh, texels: Texels) -> np.ndarray:
+    """(N,) bool: the texels on faces the finishing stage added (every corner's ADDED attribute is 1)."""
+    flag = mesh.attributes.get(ADDED)
+    if flag is None or len(texels) == 0:
+        return np.zeros(len(texels), bool)
+    face_added = (np.asarray(flag)[np.asarray(mesh.faces)] > 0.5).all(axis=1)
+    return face_added[texels.face]
+
+
+def _texel_normals(mesh: Mesh, texels: Texels) -> np.ndarray:
+    normals = texels.interpolate(mesh.normals, mesh.faces)
+    return normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+
+
+def neighbourhood_colours(points: np.ndarray, normals: np.ndarray, colours: np.ndarray, seen: np.ndarray,
+                          fill: np.ndarray) -> np.ndarray:
+    """(M,) x 3 colours for the `fill` texels (M of N) from the nearest seen texels on the same plane.
+
+    points, normals (N, 3): the texels' surface points and unit normals; colours (N, 3) linear; seen,
+    fill (N,) bool. Nearness counts the normal as NORMAL_METRES of distance per unit of difference, so a
+    hidden stretch of wall takes the wall's colour around it, not the floor's or a cabinet's. The median of
+    the NEIGHBOURS nearest, leaving out seen texels within EDGE_MARGIN of unseen ones (samples of at most
+    NEIGHBOUR_SAMPLES texels keep the trees small)."""
+    from scipy.spatial import cKDTree  # defers scipy: slow to import, only for added faces
+
+    rng = np.random.default_rng(0)
+    candidates, unseen = np.flatnonzero(seen), np.flatnonzero(~seen)
+    if len(candidates) > NEIGHBOUR_SAMPLES:
+        candidates = rng.choice(candidates, NEIGHBOUR_SAMPLES, replace=False)
+    if len(unseen) > NEIGHBOUR_SAMPLES:
+        unseen = rng.choice(unseen, NEIGHBOUR_SAMPLES, replace=False)
+    # Seen texels at the edge of what no photo sees lie at an occluder's silhouette, where its colour
+    # bleeds in (the pillar's red on the wall beside its shadow): the colour comes from beyond them.
+    distance, _ = cKDTree(points[unseen]).query(points[candidates], k=1, distance_upper_bound=EDGE_MARGIN)
+    if np.isinf(distance).any():
+        candidates = candidates[np.isinf(distance)]
+    features = np.concatenate([points, NORMAL_METRES * normals], axis=1)
+    tree = cKDTree(features[candidates])
+    k = min(NEIGHBOURS, len(candidates))
+    _, index = tree.query(features[fill], k=k)
+    index = np.asarray(index).reshape(-1, k)
+    return np.median(colours[candidates[index]], axis=1).astype(np.float32)
+
+
 def bake_colours(mesh: Mesh, texels: Texels, views: Sequence[TextureView], options: TextureOptions,
                  progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
                  ) -> tuple[np.ndarray, np.ndarray, dict]:
@@ -195,6 +247,11 @@ def bake_texture(mesh: Mesh, views: Sequence[TextureView], options: TextureOptio
         colours[~seen] = SRGB_BYTE_TO_LINEAR[np.clip(np.round(fallback[~seen] * 255), 0, 255).astype(np.int64)]
     elif (~seen).any():
         colours[~seen] = SRGB_BYTE_TO_LINEAR[round(UNSEEN_GREY * 255)]
+    added = added_texels(mesh, texels) & ~seen
+    if added.any() and seen.any():
+        colours[added] = neighbourhood_colours(texels.interpolate(mesh.vertices, mesh.faces), _texel_normals(mesh, texels),
+                                               colours, seen, added)
+    stats["texels_filled_from_neighbours"] = int(added.sum())
     W, H = size
     image = np.zeros((H, W, 3), np.float32)
     filled = np.zeros((H, W), bool)

@@ -8,7 +8,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.finish.finishing import ADDED, FINISH_CLEAN, FINISH_OFF, FINISH_ROOM, finish_mesh
+from engine.finish.finishing import finish_mesh
+from engine.finish.modes import FINISH_CLEAN, FINISH_OFF, FINISH_ROOM
+from engine.observation import ADDED
 from engine.finish.free_space import PlainDepthView, view_votes
 from engine.finish.planes import CEILING, FLOOR, WALL, find_structural_planes
 from engine.geometry.depth_render import render_depth

@@ -9,6 +9,7 @@ import pytest
 
 from engine.errors import VortxError
 from engine.jobs import CancelToken, Cancelled
+from engine.observation import ADDED
 from engine.recon.colour import ColourView, colour_vertices
 from engine.texture.bake import bake_texture, fill_gutters
 from engine.texture.options import TextureOptions
@@ -122,3 +123,26 @@ def test_a_mesh_without_normals_gets_them_from_its_winding(striped_wall):
     textured, stats = bake_texture(bare, views, OPTIONS)
     assert stats["texels_seen"] == stats["texels"]
     np.testing.assert_allclose(textured.normals, mesh.normals[textured.source_vertex], atol=1e-5)
+
+
+def test_added_faces_no_photo_sees_take_their_planes_colour_not_black():
+    """A wall behind a pillar, the stretch behind it added by the finishing stage (ADDED = 1) with black
+    vertex colours: its texels no photo sees take the wall's yellow around them, not black, nor the
+    pillar's red in front."""
+    yellow = wall(solid((0.9, 0.8, 0.1)))
+    pillar = Quad(np.array([1.2, 0.15, 0.0]), np.array([0.0, -0.3, 0.0]), np.array([0.0, 0.0, 1.5]), solid((1.0, 0.0, 0.0)))
+    mesh = join([yellow.grid(0.04), pillar.grid(0.04)])
+    behind = (mesh.vertices[:, 0] > 1.9) & (np.abs(mesh.vertices[:, 1]) < 0.32)  # the pillar's shadow: |y| < 0.27
+    mesh.attributes = {ADDED: behind.astype(np.float32)}
+    mesh.colors = np.zeros((len(mesh.vertices), 3), np.float32)
+    views = views_around([yellow, pillar], [(0.2, 0.0, 0.75)], TARGET)  # one photo, straight behind the pillar
+    textured, stats = bake_texture(mesh, views, OPTIONS)
+    assert stats["texels_filled_from_neighbours"] > 0
+    texels = rasterise_uv(textured.uvs, textured.faces, textured.texture_size)
+    points = texels.interpolate(textured.vertices, textured.faces)
+    rgb = textured.texture[texels.rows, texels.cols].astype(np.int64)
+    hidden = (points[:, 0] > 1.9) & (np.abs(points[:, 1]) < 0.05) & (points[:, 2] > 0.1) & (points[:, 2] < 1.4)
+    assert hidden.sum() > 50
+    np.testing.assert_allclose(rgb[hidden].mean(axis=0), (230, 204, 26), atol=25)
+    on_added = (points[:, 0] > 1.9) & (np.abs(points[:, 1]) < 0.27)  # faces whose corners are all added
+    assert rgb[on_added].max(axis=1).min() > 60  # no black texel on the added faces
