@@ -39,6 +39,8 @@ SNAP_DISTANCE = 0.6  # m: a plane's observed end this near a neighbouring wall i
 SUPPORTED_SHARE = 0.3  # of a piece's vertices seen by `min_views` views: the piece is supported
 SUPPORTED_VERTICES = 64  # or this many such vertices (a 30 cm patch at 4 cm voxels seen twice)
 FLATTEN_COS = 0.5  # a vertex is flattened onto a plane only when its normal is within 60 deg of the plane's
+ABSORB_TOLERANCE_FACTOR = 2.0  # pieces within this many tolerances of a plane, where it stands, are the plane's
+ABSORBED_SHARE = 0.8  # of a piece's area
 EXTENT_PERCENTILE = 0.5  # % of a plane's surface cut at each end of its extent (stray faces)
 
 
@@ -73,6 +75,7 @@ class PlaneGrid:
     observed: np.ndarray
     free: np.ndarray
     keep: np.ndarray
+    open: np.ndarray
 
     @property
     def added(self) -> np.ndarray:
@@ -83,6 +86,13 @@ class PlaneGrid:
         index = np.floor((coords - self.origin) / self.cell).astype(np.int64)
         inside = (index >= 0).all(axis=1) & (index[:, 0] < self.keep.shape[0]) & (index[:, 1] < self.keep.shape[1])
         return np.clip(index[:, 0], 0, self.keep.shape[0] - 1), np.clip(index[:, 1], 0, self.keep.shape[1] - 1), inside
+
+    def blocks(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: world points (N, 3) project into the plane's extent away from its openings (cells
+        a view saw through, grown by a cell): there the plane hides whatever lies behind it."""
+        i, j, inside = self.cells_of(self.plane.to_plane(points))
+        opening = ndimage.binary_dilation(self.open, iterations=1)
+        return inside & ~opening[i, j]
 
     def covers(self, points: np.ndarray, dilate: int = 1) -> np.ndarray:
         """(N,) bool: world points (N, 3) project into a kept cell (grown by `dilate` cells)."""
@@ -144,7 +154,8 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
         b0, b1 = _snapped(b0, b1, _wall_stops(plane, 1, walls))
     origin = np.array([a0, b0])
     shape = (max(1, int(np.ceil((a1 - a0) / cell))), max(1, int(np.ceil((b1 - b0) / cell))))
-    grid = PlaneGrid(plane, origin, cell, np.zeros(shape, bool), np.zeros(shape, bool), np.zeros(shape, bool))
+    grid = PlaneGrid(plane, origin, cell, np.zeros(shape, bool), np.zeros(shape, bool), np.zeros(shape, bool),
+                     np.zeros(shape, bool))
     i, j, inside = grid.cells_of(coords)
     grid.observed[i[inside], j[inside]] = True
     # Faces of the 4 cm marching cubes leave single empty cells between their centroids: close them.
@@ -163,12 +174,17 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
     grid.observed &= inside_walls.reshape(shape)
     votes: Votes = view_votes(centres, views)
     grid.free = votes.free().reshape(shape)
+    grid.open = votes.contradicted().reshape(shape)
     grid.keep = grid.observed.copy()
     if fill:
         # In some photo, and no view saw through it: a stereo gap on a plain wall or a stretch hidden
         # behind furniture closes; an open door or a window seen through stays open.
         fillable = (votes.in_view >= 1) & ~votes.contradicted() & inside_walls
         grid.keep |= fillable.reshape(shape)
+        # Closing holes, not inventing surface: an added stretch must touch surface that was seen.
+        labels, count = ndimage.label(grid.keep)
+        seen_labels = np.unique(labels[grid.observed & grid.keep])
+        grid.keep &= np.isin(labels, seen_labels[seen_labels > 0])
     return grid
 
 
@@ -206,6 +222,22 @@ def _pieces_to_drop(mesh: Mesh, votes: Votes, min_views: int) -> tuple[np.ndarra
     return drop_piece[labels], int(len(sizes)), int(drop_piece.sum())
 
 
+def _pieces_absorbed(mesh: Mesh, grids: Sequence[PlaneGrid], band: float) -> tuple[np.ndarray, int]:
+    """(drop (F,) bool, pieces dropped): the pieces left after the planes took their surface whose faces
+    lie (ABSORBED_SHARE of them, by area) within `band` of a plane where the plane stands: crumpled
+    wall surface the tolerance did not reach, which the plane's grid already shows."""
+    if len(mesh.faces) == 0 or not grids:
+        return np.zeros(len(mesh.faces), bool), 0
+    centroids, areas, _ = face_geometry(mesh.vertices, mesh.faces)
+    near = np.zeros(len(centroids), bool)
+    for grid in grids:
+        near |= (np.abs(grid.plane.distance(centroids)) <= band) & grid.covers(centroids)
+    labels, sizes = face_pieces(mesh.faces, len(mesh.vertices))
+    share = np.bincount(labels, areas * near, minlength=len(sizes)) / np.maximum(np.bincount(labels, areas, minlength=len(sizes)), 1e-12)
+    drop_piece = share >= ABSORBED_SHARE
+    return drop_piece[labels], int(drop_piece.sum())
+
+
 def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarray, voxel_size: float, mode: str,
                 options: Optional[FinishOptions] = None) -> FinishResult:
     """The finished mesh (see the module doc) of `mesh` (world metres, Z up, wound toward free space),
@@ -236,7 +268,8 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
         grids.append(grid)
         vertex_distance = plane.distance(vertices)[faces]  # (F, 3)
         covered = grid.covers(centroids)
-        behind = (vertex_distance < -tolerance).all(axis=1) & covered  # hidden by the plane where it stands
+        # Hidden by the plane where it stands: no photo from the room sees there except through an opening.
+        behind = (vertex_distance < -tolerance).all(axis=1) & grid.blocks(centroids)
         drop |= behind
         if mode == FINISH_ROOM:  # the plane's grid replaces the surface on it
             drop |= (np.abs(vertex_distance) <= tolerance).all(axis=1) & covered
@@ -244,9 +277,19 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
     kept = keep_faces(Mesh(vertices.astype(np.float32), faces.astype(np.int32)), ~drop)
 
     votes = view_votes(kept.vertices, views)
+    # Surface in free space goes face by face: most views that frame it saw past it (crumpled stereo
+    # in front of a wall that the other views saw where it is).
+    carved = votes.free()[np.asarray(kept.faces)].sum(axis=1) >= 2
+    stats["carved_faces"] = int(carved.sum())
+    kept = keep_faces(kept, ~carved)
+    votes = view_votes(kept.vertices, views)
     drop_piece, pieces, dropped = _pieces_to_drop(kept, votes, options.min_views)
     stats.update({"pieces_before": pieces, "pieces_dropped": dropped})
     kept = keep_faces(kept, ~drop_piece)
+    if mode == FINISH_ROOM:
+        absorbed = _pieces_absorbed(kept, grids, ABSORB_TOLERANCE_FACTOR * tolerance)
+        stats["pieces_absorbed"] = int(absorbed[1])
+        kept = keep_faces(kept, ~absorbed[0])
     out_vertices = np.asarray(kept.vertices, np.float64)
 
     if mode == FINISH_CLEAN:  # flatten what lies on a plane where the plane stands

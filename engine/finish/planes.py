@@ -31,12 +31,16 @@ VERTICAL_SIN = 0.35  # |n_z| below this: a face faces sideways (within 20 deg of
 HEADING_TOLERANCE_DEG = 20.0  # a wall face's heading within this of its wall's normal
 MANHATTAN_TOLERANCE_DEG = 15.0
 MANHATTAN_SHARE = 0.5  # of the vertical area within tolerance of the Manhattan directions: the frame holds
+MANHATTAN_SHARPNESS = 1.5  # the walls' position histograms this much sharper square to the frame: it holds
+MANHATTAN_FACING_DEG = 45.0  # in a Manhattan frame a wall's faces face within this of its normal (crumpled stereo)
 HISTOGRAM_BIN = 0.02  # m
 PEAK_WINDOW = 0.06  # m either side of a peak: the area that supports it
 MIN_PLANE_AREA = 0.3  # m^2 of surface a structural plane needs
-MIN_WALL_HEIGHT = 0.8  # m: a wall's surface spans at least this height (a kitchen counter's front does not)
+MIN_WALL_HEIGHT = 1.2  # m: a wall's surface spans at least this height (a counter's or a shelf's front does not)
 BEHIND_MARGIN = 0.2  # m behind a candidate wall before surface counts as "behind" it
-MAX_BEHIND_SHARE = 0.35  # surface behind a wall across its span, as a share of the wall's own area
+# Surface behind a wall across its span, as a share of the wall's own area: a cabinet front has more
+# wall behind it than its own area; a wall has at most what its windows and doors show of outside.
+MAX_BEHIND_SHARE = 1.0
 
 
 @dataclass
@@ -88,11 +92,14 @@ def _histogram_peaks(values: np.ndarray, weights: np.ndarray, min_weight: float)
     hist = np.bincount(((values - lo) / HISTOGRAM_BIN).astype(np.int64), weights, minlength=bins)
     half = int(round(PEAK_WINDOW / HISTOGRAM_BIN))
     window = np.convolve(hist, np.ones(2 * half + 1), mode="same")  # area within +-PEAK_WINDOW of each bin
+    sharp = np.convolve(hist, [1.0, 2.0, 1.0], mode="same")  # where a peak is; `window`: how strong
     peaks: list[tuple[float, float]] = []
-    for index in np.argsort(-window):
+    for index in np.argsort(-sharp):
         weight = float(window[index])
-        if weight < min_weight:
+        if sharp[index] <= 0:
             break
+        if weight < min_weight:
+            continue
         position = lo + (index + 0.5) * HISTOGRAM_BIN
         if all(abs(position - p) > 2 * PEAK_WINDOW for p, _ in peaks):
             peaks.append((position, weight))
@@ -147,13 +154,48 @@ def _wall_directions(normals: np.ndarray, areas: np.ndarray) -> tuple[list[np.nd
     return [np.array([np.cos(np.radians(d + 0.5)), np.sin(np.radians(d + 0.5)), 0.0]) for d in directions], heading, False
 
 
+def _directions(heading: float) -> list[np.ndarray]:
+    """The four horizontal unit directions of a Manhattan frame at `heading` (radians)."""
+    return [np.array([np.cos(heading + k * np.pi / 2), np.sin(heading + k * np.pi / 2), 0.0]) for k in range(4)]
+
+
+def position_heading(centroids: np.ndarray, areas: np.ndarray, normals: np.ndarray) -> tuple[float, float]:
+    """(heading in radians in [0, pi/2), sharpness ratio) of the room's Manhattan frame from where its
+    sideways-facing surface lies: for each candidate heading the area histograms of position along the
+    two axes (faces facing within 60 deg of each axis) are squared and summed; walls make the sum peak
+    where the axes are square to them. The ratio is the best sum over the median one (1 for no frame)."""
+    sideways = np.abs(normals[:, 2]) < 0.5
+    c, a, n = centroids[sideways, :2], areas[sideways], normals[sideways, :2]
+    if len(c) < 10:
+        return 0.0, 1.0
+
+    def score(angle: float) -> float:
+        total = 0.0
+        for axis in (np.array([np.cos(angle), np.sin(angle)]), np.array([-np.sin(angle), np.cos(angle)])):
+            facing = np.abs(n @ axis) > 0.5
+            if not facing.any():
+                continue
+            position = c[facing] @ axis
+            bins = np.floor((position - position.min()) / HISTOGRAM_BIN).astype(np.int64)
+            total += float(np.sum(np.bincount(bins, a[facing]) ** 2))
+        return total
+
+    coarse = np.radians(np.arange(0.0, 90.0, 1.0))
+    scores = np.array([score(t) for t in coarse])
+    best = float(coarse[int(np.argmax(scores))])
+    fine = best + np.radians(np.arange(-1.0, 1.01, 0.1))
+    fine_scores = np.array([score(t) for t in fine])
+    heading = float(np.mod(fine[int(np.argmax(fine_scores))], np.pi / 2))
+    return heading, float(fine_scores.max() / max(np.median(scores), 1e-12))
+
+
 def _heading_from_positions(centroids: np.ndarray, areas: np.ndarray, normals: np.ndarray, vertical: np.ndarray,
                             directions: list[np.ndarray], heading: float) -> float:
     """The Manhattan heading refined from where the wall surfaces lie: per direction, the faces of its
     strongest position peak give a line (the principal axis of their xy positions); the lines' headings
     (mod 90 deg) are averaged by area."""
     votes = []
-    cos_tolerance = np.cos(np.radians(HEADING_TOLERANCE_DEG))
+    cos_tolerance = np.cos(np.radians(MANHATTAN_FACING_DEG))
     for direction in directions:
         facing = vertical & (normals @ direction > cos_tolerance)
         position = centroids[facing] @ direction
@@ -189,22 +231,33 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
     horizontal_normals = normals[vertical, :2]
     horizontal_normals = horizontal_normals / np.maximum(np.linalg.norm(horizontal_normals, axis=1, keepdims=True), 1e-12)
     wall_normals = np.concatenate([horizontal_normals, np.zeros((len(horizontal_normals), 1))], axis=1)
-    directions, heading, manhattan = _wall_directions(wall_normals, areas[vertical])
-    if manhattan:  # face normals of a noisy surface lean; the walls' positions do not
-        heading = _heading_from_positions(centroids, areas, normals, vertical, directions, heading)
-        directions = [np.array([np.cos(heading + k * np.pi / 2), np.sin(heading + k * np.pi / 2), 0.0]) for k in range(4)]
+    # Where the walls stand says the room's frame better than how crumpled stereo surface faces.
+    heading, sharpness = position_heading(centroids, areas, normals)
+    manhattan = sharpness >= MANHATTAN_SHARPNESS
+    if manhattan:
+        heading = _heading_from_positions(centroids, areas, normals, vertical, _directions(heading), heading)
+        directions = _directions(heading)
+    else:
+        directions, heading, manhattan = _wall_directions(wall_normals, areas[vertical])
+        if manhattan:
+            heading = _heading_from_positions(centroids, areas, normals, vertical, directions, heading)
+            directions = _directions(heading)
     u_floor = np.array([np.cos(heading), np.sin(heading), 0.0])
     planes: list[StructuralPlane] = []
 
     up = normals[:, 2] > HORIZONTAL_COS
-    floor_peaks = [p for p in _histogram_peaks(centroids[up, 2], areas[up], min_area) if p[0] < low - 0.3]
+    floor_peaks = [p for p in _histogram_peaks(centroids[up, 2], areas[up], min_area)
+                   if p[0] < low - 0.3 and areas[centroids[:, 2] < p[0] - BEHIND_MARGIN].sum() <= MAX_BEHIND_SHARE * p[1]]
     if floor_peaks:
         z, weight = min(floor_peaks)
         offset = _refine_offset(centroids[up, 2], areas[up], z)
         planes.append(StructuralPlane(FLOOR, np.array([0.0, 0.0, 1.0]), offset, weight,
                                       np.stack([u_floor, np.cross([0.0, 0.0, 1.0], u_floor)])))
     down = normals[:, 2] < -HORIZONTAL_COS
-    ceiling_peaks = [p for p in _histogram_peaks(centroids[down, 2], areas[down], min_area) if p[0] > high + 0.1]
+    # The ceiling bounds the room from above: little surface lies above it (a shelf's underside has the
+    # walls going on above it).
+    ceiling_peaks = [p for p in _histogram_peaks(centroids[down, 2], areas[down], min_area)
+                     if p[0] > high + 0.1 and areas[centroids[:, 2] > p[0] + BEHIND_MARGIN].sum() <= MAX_BEHIND_SHARE * p[1]]
     if ceiling_peaks:
         z, weight = max(ceiling_peaks)
         offset = _refine_offset(centroids[down, 2], areas[down], z)
@@ -214,7 +267,7 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
 
     z_lo = next((p.offset for p in planes if p.kind == FLOOR), float(centroids[:, 2].min()) if len(centroids) else 0.0)
     z_hi = next((-p.offset for p in planes if p.kind == CEILING), float(centroids[:, 2].max()) if len(centroids) else 0.0)
-    cos_tolerance = np.cos(np.radians(HEADING_TOLERANCE_DEG))
+    cos_tolerance = np.cos(np.radians(MANHATTAN_FACING_DEG if manhattan else HEADING_TOLERANCE_DEG))
     for direction in directions:
         facing = vertical & (normals @ direction > cos_tolerance)
         position = centroids[facing] @ direction
@@ -222,6 +275,8 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
         for peak, weight in _histogram_peaks(position, areas[facing], min_area):
             offset = _refine_offset(position, areas[facing], peak)
             near = np.abs(position - offset) <= PEAK_WINDOW
+            if near.sum() < 3:
+                continue
             heights = centroids[facing][near, 2]
             if np.percentile(heights, 98) - np.percentile(heights, 2) < MIN_WALL_HEIGHT:
                 continue
@@ -234,6 +289,8 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
                 continue  # furniture, or an inner wall with room behind it
             if len(cameras) and np.median(cameras @ direction) < offset:
                 continue  # the cameras are behind it
+            if any(p.kind == WALL and p.normal @ direction > 0.99 and abs(p.offset - offset) < 2 * PEAK_WINDOW for p in planes):
+                continue  # the same wall again (its histogram has a broad top)
             planes.append(StructuralPlane(WALL, direction.copy(), offset, weight,
                                           np.stack([u_axis, np.array([0.0, 0.0, 1.0])])))
     return planes, {"heading_deg": round(float(np.degrees(heading)), 2), "manhattan": bool(manhattan)}

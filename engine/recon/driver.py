@@ -24,6 +24,7 @@ from ..stereo.depth_maps import DepthMap
 from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
 from ..stereo.vertex_evidence import attach_evidence
 from .colour import colour_mesh
+from .finish_step import finish_reconstruction
 from .features import FeatureCache, encode_keyframes, keyframe_image_size
 from .tile_fusion import SceneStereo, fuse_tile
 from .memory import PeakMemory
@@ -189,6 +190,12 @@ def _run_planned(
         return ReconResult(empty_mesh(), plan.tiles, stats,
                            f"the fine TSDF ({level_label(settings.voxel_size)}) never changes sign, so there is no "
                            "surface: the weights may be untrained/random, or the poses are not metric and gravity-aligned")
+    check(cancel)
+    with timer.stage("finish"):
+        mesh, finish_stats = finish_reconstruction(mesh, plan, settings, stereo_maps)
+    if finish_stats is not None:
+        stats["finish"] = finish_stats
+        stats["mesh"]["finished_faces"] = int(len(mesh.faces))
     with timer.stage("colour"):
         mesh.colors = colour_mesh(mesh, plan, settings, progress, cancel)
     if stereo_maps:

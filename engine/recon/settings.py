@@ -13,6 +13,7 @@ from dataclasses import MISSING, Field, asdict, dataclass, field, fields
 from typing import Any, Optional
 
 from ..errors import VortxError
+from ..finish.modes import FINISH_MODES, FINISH_ROOM  # the finishing stage's modes live with it
 from ..stereo.options import STEREO_MATCHERS, StereoOptions  # the stereo defaults live with the stereo code
 from ..texture.options import TEXTURE_SIZES, TextureOptions  # and the texture bake's with the bake
 from ..texture.presets import DEFAULT_PRESET, PRESET_NAMES, PRESETS, with_preset  # the headset budgets
@@ -162,6 +163,16 @@ class ReconSettings:
         StereoOptions.consistency_views, "keep a depth only if this many other depth maps agree within 2 percent (0 = off; fusion already "
         "filters most outliers, and a strict check loses more surface than noise)",
         (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=0, max=10, label="Consistency")
+
+    # The finishing stage (engine/finish): planes found, flattened and closed, unsupported pieces dropped.
+    finish: str = setting(
+        FINISH_ROOM, "how the mesh is finished for VR: 'room' = floor, ceiling and walls found, flattened onto their "
+        "planes and closed where no photo saw through them (added faces marked with the 'added' attribute), pieces few "
+        "photos support dropped, furniture kept; 'clean' = the same without adding faces; 'off' = the fused surface as "
+        "it is", (CLI, BLENDER), choices=FINISH_MODES, label="Finish", choice_help=(
+            "The fused surface as it is: every piece, crumpled walls, holes",
+            "Pieces few photos support dropped, surface on the floor, ceiling and walls flattened onto them; nothing added",
+            "As Clean, and the floor, ceiling and walls closed where no photo saw through them; added faces are marked"))
 
     # The textured result (engine/texture): GLB / OBJ files, Blender's Bake Texture, the VR preset.
     texture_size: int = setting(

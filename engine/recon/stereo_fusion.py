@@ -22,6 +22,7 @@ from ..stereo.depth_maps import DepthMap
 from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS, drop_unsupported_pieces, fuse_stereo_evidence
 from ..stereo.vertex_evidence import attach_evidence
 from .colour import colour_mesh
+from .finish_step import finish_reconstruction
 from .memory import PeakMemory
 from .mesh import extract_mesh
 from .plan import ReconPlan, plan_reconstruction, posed_frames, room_size_warning
@@ -181,6 +182,11 @@ def run_stereo_fusion(
                                                                 options.piece_min_views)
             del tsdf, observed, fused
         report(progress, "mesh", 1, 1)
+        check(cancel)
+        with timer.stage("finish"):
+            mesh, finish_stats = finish_reconstruction(mesh, plan, settings, maps)
+        if finish_stats is not None:
+            stats["finish"] = finish_stats
         message = None
         if len(mesh.faces) == 0:
             message = ("stereo found no surface: the photos may lack texture or overlap, or the poses are not "
