@@ -230,10 +230,12 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
             layout.prop(result, results.SHOW_OBSERVATION)
         else:
             layout.label(text="No observation layer", icon="INFO")
+    # How the next reconstruction finishes its mesh (engine/finish): the room's structure, before any clean-up below.
+    layout.prop(settings, "finish")
     col = layout.column(align=True)
-    col.prop(settings, "min_piece_faces")
-    col.prop(settings, "min_piece_fraction")
-    layout.prop(settings, "target_faces")
+    for name in ("min_piece_faces", "min_piece_fraction"):
+        limit_prop(col, settings, name)
+    limit_prop(layout, settings, "target_faces")
     row = layout.row(align=True)
     row.operator("vortx.clean_result", icon="BRUSH_DATA")
     row.operator("vortx.export_result", icon="EXPORT")
@@ -252,6 +254,22 @@ def draw_result_settings(layout: Any, settings: Any, result: Optional[Any] = Non
         layout.label(text=f"Textured: {baked['texture_size']} px, {baked['stats'].get('faces', '?')} faces", icon="CHECKMARK")
 
 
+def limit_prop(layout: Any, settings: Any, name: str) -> None:
+    """A clean-up limit whose 0 turns it off: the field, and "Off" beside it while it does nothing
+    (Blender cannot show a number field's 0 as a word)."""
+    if getattr(settings, name):
+        layout.prop(settings, name)
+        return
+    # The label column as use_property_split draws it, then the field and the word.
+    split = layout.split(factor=sidebar.SPLIT_FACTOR)
+    label = split.row()
+    label.alignment = "RIGHT"
+    label.label(text=settings.bl_rna.properties[name].name)
+    row = split.row(align=True)
+    row.prop(settings, name, text="")
+    row.label(text="Off")
+
+
 def textured_property_names() -> list[str]:
     """The scene properties of the settings only a textured result reads (setting(textured=True)), in
     declaration order: the Result panel's, beside Bake Texture."""
@@ -262,7 +280,7 @@ def textured_property_names() -> list[str]:
 # Capture panel, the textured result's beside Bake Texture); the stereo method's settings (stereo_*)
 # appear in Advanced > Stereo and every other ReconSettings field offered to Blender in Advanced, each by
 # itself in declaration order.
-DRAWN_ELSEWHERE = ("method", "voxel_size", *MODEL_SETTINGS, "device", "seed", "output_frame")
+DRAWN_ELSEWHERE = ("method", "voxel_size", *MODEL_SETTINGS, "device", "seed", "output_frame", "finish")
 STEREO_PREFIX = "stereo_"
 
 

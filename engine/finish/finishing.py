@@ -37,6 +37,7 @@ from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_s
 
 SNAP_DISTANCE = 0.6  # m: a plane's observed end this near a neighbouring wall is taken to that wall
 SUPPORTED_SHARE = 0.3  # of a piece's vertices seen by `min_views` views: the piece is supported
+SMALL_PIECE_AREA = 0.25  # m^2: a piece this small needs more views (the surface metrics' floater size)
 SUPPORTED_VERTICES = 64  # or this many such vertices (a 30 cm patch at 4 cm voxels seen twice)
 FLATTEN_COS = 0.5  # a vertex is flattened onto a plane only when its normal is within 60 deg of the plane's
 ABSORB_TOLERANCE_FACTOR = 2.0  # pieces within this many tolerances of a plane, where it stands, are the plane's
@@ -47,11 +48,13 @@ EXTENT_PERCENTILE = 0.5  # % of a plane's surface cut at each end of its extent 
 @dataclass
 class FinishOptions:
     """tolerance: m from a structural plane within which surface is the plane (None: 2 voxels, at
-    least 6 cm). min_views: depth maps that must see a piece for it to stay. cell: the plane grid's cell
+    least 6 cm). min_views: depth maps that must see a piece for it to stay; small_piece_views: those that
+    must see a small piece (under SMALL_PIECE_AREA). cell: the plane grid's cell
     in m (None: the voxel size)."""
 
     tolerance: Optional[float] = None
     min_views: int = 2
+    small_piece_views: int = 6
     cell: Optional[float] = None
     min_plane_area: float = 0.3
 
@@ -203,13 +206,22 @@ def grid_mesh(grid: PlaneGrid, cells: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return grid.plane.from_plane(coords), faces
 
 
-def _pieces_to_drop(mesh: Mesh, votes: Votes, min_views: int) -> tuple[np.ndarray, int, int]:
+def _pieces_to_drop(mesh: Mesh, votes: Votes, min_views: int, small_min_views: int) -> tuple[np.ndarray, int, int]:
     """(drop (F,) bool, pieces, dropped pieces): a piece goes when few of its vertices are seen by
-    `min_views` views (under SUPPORTED_SHARE of them and under SUPPORTED_VERTICES), or when most of its
-    vertices are seen through by more views than see them (it floats in free space)."""
+    `min_views` views (under SUPPORTED_SHARE of them and under SUPPORTED_VERTICES), when most of its
+    vertices are seen through by more views than see them (it floats in free space), or when it is a
+    small piece (under SMALL_PIECE_AREA) that fewer than `small_min_views` views see (the median of its
+    vertices): a real small object is seen from many places, stereo's debris only by the few views that
+    made it and their neighbours (measured on the demo room: docs/experiments.md, "A finished room")."""
     labels, sizes = face_pieces(mesh.faces, len(mesh.vertices))
     if len(sizes) == 0:
         return np.zeros(0, bool), 0, 0
+    _, face_areas, _ = face_geometry(mesh.vertices, mesh.faces)
+    area = np.bincount(labels, face_areas, minlength=len(sizes))
+    face_seen = votes.seen[np.asarray(mesh.faces)].mean(axis=1)
+    order = np.lexsort((face_seen, labels))  # faces by piece, then by how many views see them
+    starts = np.searchsorted(labels[order], np.arange(len(sizes)))
+    median_seen = face_seen[order][starts + (np.bincount(labels, minlength=len(sizes)) - 1) // 2]
     vertex_piece = np.zeros(len(mesh.vertices), np.int64)
     vertex_piece[mesh.faces.ravel()] = np.repeat(labels, 3)
     used = np.zeros(len(mesh.vertices), bool)
@@ -218,7 +230,8 @@ def _pieces_to_drop(mesh: Mesh, votes: Votes, min_views: int) -> tuple[np.ndarra
     supported = np.bincount(vertex_piece[used], (votes.seen[used] >= min_views).astype(np.float64), minlength=len(sizes))
     floating = np.bincount(vertex_piece[used], (votes.through[used] > votes.seen[used]).astype(np.float64), minlength=len(sizes))
     # A large surface seen well in part (a floor seen from afar) stays: enough of it is supported.
-    drop_piece = ((supported < SUPPORTED_SHARE * count) & (supported < SUPPORTED_VERTICES)) | (floating > 0.5 * count)
+    drop_piece = (((supported < SUPPORTED_SHARE * count) & (supported < SUPPORTED_VERTICES)) | (floating > 0.5 * count)
+                  | ((area < SMALL_PIECE_AREA) & (median_seen < small_min_views)))
     return drop_piece[labels], int(len(sizes)), int(drop_piece.sum())
 
 
@@ -283,7 +296,7 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
     stats["carved_faces"] = int(carved.sum())
     kept = keep_faces(kept, ~carved)
     votes = view_votes(kept.vertices, views)
-    drop_piece, pieces, dropped = _pieces_to_drop(kept, votes, options.min_views)
+    drop_piece, pieces, dropped = _pieces_to_drop(kept, votes, options.min_views, options.small_piece_views)
     stats.update({"pieces_before": pieces, "pieces_dropped": dropped})
     kept = keep_faces(kept, ~drop_piece)
     if mode == FINISH_ROOM:

@@ -182,7 +182,7 @@ def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
         ("VORTX_PT_pose_settings", ["sfm_matcher", "sfm_max_image_side", "camera_height"]),
         ("VORTX_PT_model", ["weights_source", "device", "seed", "view_count", "tile_size", "image_size"]),
         ("VORTX_PT_tiles", ["show_tiles"]),
-        ("VORTX_PT_result", ["min_piece_faces", "min_piece_fraction", "target_faces", "texture_size", "face_budget",
+        ("VORTX_PT_result", ["finish", "min_piece_faces", "min_piece_fraction", "target_faces", "texture_size", "face_budget",
                              *(["headset"] if "headset" in RECON_NAMES else [])]),  # the headset: being added
         ("VORTX_PT_advanced", ["frustum_depth", "max_room_size", "colour_views"]),
     ],
