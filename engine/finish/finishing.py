@@ -37,6 +37,8 @@ from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_s
 
 SNAP_DISTANCE = 0.6  # m: a plane's observed end this near a neighbouring wall is taken to that wall
 SUPPORTED_SHARE = 0.3  # of a piece's vertices seen by `min_views` views: the piece is supported
+VIEWS_PER_MIN_VIEW = 18  # depth maps per view a piece must be seen by
+VIEWS_PER_SMALL_PIECE_VIEW = 6  # depth maps per view a small piece must be seen by
 SMALL_PIECE_AREA = 0.25  # m^2: a piece this small needs more views (the surface metrics' floater size)
 SUPPORTED_VERTICES = 64  # or this many such vertices (a 30 cm patch at 4 cm voxels seen twice)
 FLATTEN_COS = 0.5  # a vertex is flattened onto a plane only when its normal is within 60 deg of the plane's
@@ -49,12 +51,13 @@ EXTENT_PERCENTILE = 0.5  # % of a plane's surface cut at each end of its extent 
 class FinishOptions:
     """tolerance: m from a structural plane within which surface is the plane (None: 2 voxels, at
     least 6 cm). min_views: depth maps that must see a piece for it to stay; small_piece_views: those that
-    must see a small piece (under SMALL_PIECE_AREA). cell: the plane grid's cell
+    must see a small piece (under SMALL_PIECE_AREA) of a room whose structure was found (None: scaled
+    with the number of depth maps, VIEWS_PER_MIN_VIEW and VIEWS_PER_SMALL_PIECE_VIEW of them per view). cell: the plane grid's cell
     in m (None: the voxel size)."""
 
     tolerance: Optional[float] = None
-    min_views: int = 2
-    small_piece_views: int = 6
+    min_views: Optional[int] = None
+    small_piece_views: Optional[int] = None
     cell: Optional[float] = None
     min_plane_area: float = 0.3
 
@@ -296,7 +299,18 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
     stats["carved_faces"] = int(carved.sum())
     kept = keep_faces(kept, ~carved)
     votes = view_votes(kept.vertices, views)
-    drop_piece, pieces, dropped = _pieces_to_drop(kept, votes, options.min_views, options.small_piece_views)
+    # A surface point is seen by a share of the maps, so the views asked of a piece grow with their number
+    # (the demo room's 36 maps: 2 and 6; the SUN3D room's 12: 1 and 2).
+    min_views = options.min_views if options.min_views is not None else max(1, round(len(views) / VIEWS_PER_MIN_VIEW))
+    small_views = (options.small_piece_views if options.small_piece_views is not None
+                   else max(2, round(len(views) / VIEWS_PER_SMALL_PIECE_VIEW)))
+    # Small pieces are judged harder only where the room's structure was found: its planes then show the
+    # room, and what is left in small pieces is stereo's debris around them; without it (a room whose floor
+    # and walls stereo did not find) the small pieces are most of what the photos give.
+    kinds = [p.kind for p in planes]
+    structured = FLOOR in kinds and kinds.count(WALL) >= 2
+    stats.update({"min_views": min_views, "small_piece_views": small_views if structured else None})
+    drop_piece, pieces, dropped = _pieces_to_drop(kept, votes, min_views, small_views if structured else 0)
     stats.update({"pieces_before": pieces, "pieces_dropped": dropped})
     kept = keep_faces(kept, ~drop_piece)
     if mode == FINISH_ROOM:
