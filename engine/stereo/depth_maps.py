@@ -264,7 +264,8 @@ def _patchmatch_maps(
         chosen = patchmatch_sources(ref_poses, Ks, sizes, i, options.sources, points, ranges[i])
         sources[i] = [int(s) for s in chosen if tuple(sizes[s]) == tuple(sizes[i])]
     schedule = PatchMatchSchedule(scales=options.scales, window=options.pm_window, coarse_iterations=options.coarse_iterations,
-                                  fine_iterations=options.fine_iterations, geometric_passes=options.geometric_passes)
+                                  fine_iterations=options.fine_iterations, geometric_passes=options.geometric_passes,
+                                  seed_planes=options.seed_planes)
     local_image = lambda i: image(references[i])  # noqa: E731
     planes = patchmatch_views(list(range(len(references))), lambda i: sources[i], local_image, ref_poses, ranges,
                               schedule, device, progress=progress, cancel=cancel, stages=stages)

@@ -41,6 +41,7 @@ class StereoOptions:
     coarse_iterations: int = 3
     fine_iterations: int = 2
     geometric_passes: int = 1
+    seed_planes: int = 0  # PatchMatch starts from a fronto-parallel sweep over this many planes at its coarsest scale (0 = random planes)
     device: str = "cpu"
 
     def validate(self) -> None:
@@ -69,5 +70,7 @@ class StereoOptions:
             raise VortxError(f"stereo ground planes cannot be negative, got {self.ground_planes}")
         if self.max_references < 1:
             raise VortxError(f"stereo references must be at least 1, got {self.max_references}")
+        if self.seed_planes != 0 and self.seed_planes < 3:
+            raise VortxError(f"PatchMatch seed planes must be 0 (off) or at least 3, got {self.seed_planes}")
         if self.consistency_views < 0:
             raise VortxError(f"stereo consistency views cannot be negative, got {self.consistency_views}")

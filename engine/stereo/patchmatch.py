@@ -139,26 +139,40 @@ def initial_state(ref: ReferenceWindows, sources: SourceViews, depth_range: tupl
     return state
 
 
+_AREA_SIZES = [len(area) for area in PROPAGATION_AREAS]
+
+
+def _area_neighbours(ref: ReferenceWindows, pixels: Tensor) -> tuple[Tensor, Tensor]:
+    """The flat indices (A, N) of every propagation area's neighbours of `pixels` (the areas' offsets
+    concatenated, A = 80) and whether each lies inside the image; computed once per reference and
+    checkerboard colour, since the same pixels are updated every iteration."""
+    cache = ref.__dict__.setdefault("_area_neighbours", {})
+    key = (int(pixels[0]) if len(pixels) else -1, int(pixels.shape[0]))
+    if key not in cache:
+        H, W = ref.height, ref.width
+        v, u = pixels // W, pixels % W
+        offsets = torch.tensor([o for area in PROPAGATION_AREAS for o in area], device=pixels.device)  # (A, 2) (dv, du)
+        nv, nu = v[None] + offsets[:, :1], u[None] + offsets[:, 1:]  # (A, N)
+        inside = (nv >= 0) & (nv < H) & (nu >= 0) & (nu < W)
+        cache[key] = (nv.clamp(0, H - 1) * W + nu.clamp(0, W - 1), inside)
+    return cache[key]
+
+
 def _propagation_candidates(state: PlaneState, ref: ReferenceWindows, pixels: Tensor) -> tuple[Tensor, Tensor]:
     """For each of the 8 areas, the lowest-cost neighbour plane re-expressed at `pixels`:
     depths (8, N) (0 where none) and normals (8, N, 3)."""
-    H, W = ref.height, ref.width
-    v, u = pixels // W, pixels % W
-    rho = state.rho
-    depths, normals = [], []
-    for area in PROPAGATION_AREAS:
-        offsets = torch.tensor(area, device=pixels.device)  # (A, 2) (dv, du)
-        nv, nu = v[None] + offsets[:, :1], u[None] + offsets[:, 1:]  # (A, N)
-        inside = (nv >= 0) & (nv < H) & (nu >= 0) & (nu < W)
-        neighbour = (nv.clamp(0, H - 1) * W + nu.clamp(0, W - 1))
-        cost = torch.where(inside, state.cost[neighbour], torch.full_like(neighbour, 10.0, dtype=state.cost.dtype))
-        best = neighbour.gather(0, cost.argmin(0)[None])[0]  # (N,)
-        found = inside.any(0)
-        normal = state.normal[best]
-        depth = plane_depth(normal, rho[best], ref.rays[pixels])
-        depths.append(torch.where(found, depth, torch.zeros_like(depth)))
-        normals.append(normal)
-    return torch.stack(depths), torch.stack(normals)
+    neighbour, inside = _area_neighbours(ref, pixels)
+    cost = torch.where(inside, state.cost[neighbour], torch.full_like(neighbour, 10.0, dtype=state.cost.dtype))
+    best, found = [], []
+    for index, area_cost, area_inside in zip(neighbour.split(_AREA_SIZES), cost.split(_AREA_SIZES), inside.split(_AREA_SIZES)):
+        best.append(index.gather(0, area_cost.argmin(0)[None])[0])  # (N,)
+        found.append(area_inside.any(0))
+    best_t, found_t = torch.stack(best), torch.stack(found)  # (8, N)
+    normals = state.normal[best_t]  # (8, N, 3)
+    rays = ref.rays[pixels]
+    depths = plane_depth(normals.reshape(-1, 3), state.rho[best_t].reshape(-1),
+                         rays[None].expand(len(best), -1, -1).reshape(-1, 3)).reshape(best_t.shape)
+    return torch.where(found_t, depths, torch.zeros_like(depths)), normals
 
 
 def _refinement_candidates(state: PlaneState, ref: ReferenceWindows, pixels: Tensor, iteration: int,

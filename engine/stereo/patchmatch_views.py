@@ -31,6 +31,10 @@ from ..jobs import CancelToken, ProgressCallback, check, report
 from .patchmatch import PlaneState, initial_state, patchmatch_iterations, rescore, upsample_planes
 from .plane_cost import MAX_COST, ReferenceWindows, SourceViews
 from .stage_clock import phase, stage
+from .sweep import sweep_depth
+
+SEED_WINDOW = 5  # the seed sweep's NCC window at the coarsest scale (pixels)
+SEED_MIN_NCC = 0.3  # a seed depth is kept from this NCC: a wrong seed costs no more than the random plane it replaces
 
 # An image source: (position) -> (grey (h, w) float32 tensor at the finest stereo size, K (3, 3) for it).
 ImageSource = Callable[[int], tuple[Tensor, np.ndarray]]
@@ -46,6 +50,7 @@ class PatchMatchSchedule:
     geometric_iterations: int = 1  # PatchMatch iterations per view and pass
     geometric_weight: float = 0.2  # cost per pixel of reprojection error (ACMM: 0.2, capped at 3 px)
     seed: int = 0
+    seed_planes: int = 0  # > 0: start the coarsest scale from a fronto-parallel sweep over this many planes (0 = random planes)
 
 
 @dataclass
@@ -130,6 +135,42 @@ def _fronto_normals(rays: Tensor) -> Tensor:
     return -rays / rays.norm(dim=-1, keepdim=True)
 
 
+SEED_NORMAL_STEP = 2  # pixels either side for the seed's normals: a sweep's depth is stepped, one pixel is too close
+
+
+def depth_map_normals(depth: Tensor, ref: ReferenceWindows) -> Tensor:
+    """(HW, 3) unit normals facing the camera of the surface of a depth map (HW,) at the reference's
+    pixels, from the cross product of its points SEED_NORMAL_STEP pixels apart either way; facing the
+    camera where a neighbour has no depth."""
+    H, W, k = ref.height, ref.width, SEED_NORMAL_STEP
+    points = (ref.rays * depth[:, None]).reshape(H, W, 3)
+    has = (depth > 0).reshape(H, W)
+    normal = _fronto_normals(ref.rays).reshape(H, W, 3).clone()
+    if H > 2 * k and W > 2 * k:
+        du = points[k:-k, 2 * k:] - points[k:-k, :-2 * k]
+        dv = points[2 * k:, k:-k] - points[:-2 * k, k:-k]
+        cross = torch.linalg.cross(du, dv)
+        length = cross.norm(dim=-1, keepdim=True)
+        ok = has[k:-k, 2 * k:] & has[k:-k, :-2 * k] & has[2 * k:, k:-k] & has[:-2 * k, k:-k] & (length[..., 0] > 0)
+        cross = cross / length.clamp_min(1e-12)
+        rays = ref.rays.reshape(H, W, 3)[k:-k, k:-k]
+        cross = torch.where((cross * rays).sum(-1, keepdim=True) > 0, -cross, cross)
+        normal[k:-k, k:-k] = torch.where(ok[..., None], cross, normal[k:-k, k:-k])
+    return normal.reshape(-1, 3)
+
+
+def seed_depth(ref: ReferenceWindows, sources: SourceViews, depth_range: tuple[float, float], planes: int) -> Tensor:
+    """(HW,) a fronto-parallel sweep's depth of the reference at its own size (0 where it found none):
+    planes for PatchMatch to start from, so its first iterations refine surfaces instead of finding them
+    (OpenMVS starts from the sparse points; the sweep also covers views without them)."""
+    S = len(sources)
+    src_from_ref = torch.zeros((S, 4, 4), dtype=sources.rotation.dtype, device=sources.rotation.device)
+    src_from_ref[:, :3, :3], src_from_ref[:, :3, 3], src_from_ref[:, 3, 3] = sources.rotation, sources.translation, 1.0
+    result = sweep_depth(ref.image, sources.images, ref.K, sources.K, src_from_ref, depth_range, planes, 0,
+                         max(1, S // 2), SEED_WINDOW, SEED_MIN_NCC)
+    return result.depth.reshape(-1)
+
+
 def photometric_planes(
     image: Tensor, K: np.ndarray, pose: np.ndarray, source_images: Sequence[Tensor], source_Ks: Sequence[np.ndarray],
     source_poses: Sequence[np.ndarray], depth_range: tuple[float, float], schedule: PatchMatchSchedule,
@@ -157,6 +198,11 @@ def photometric_planes(
                 start = torch.as_tensor(initial_depth, dtype=torch.float32)[None, None]
                 depth = F.interpolate(start, size=size, mode="nearest").reshape(-1).to(device)
                 normal = _fronto_normals(ref.rays)
+            if schedule.seed_planes > 0 and len(sources):
+                with stage("seed sweep"):
+                    seeded = seed_depth(ref, sources, depth_range, schedule.seed_planes)
+                depth = seeded if depth is None else torch.where(depth > 0, depth, seeded)
+                normal = depth_map_normals(depth, ref)
             with stage("initialisation"):
                 state = initial_state(ref, sources, depth_range, generator, depth, normal)
             count = schedule.coarse_iterations

@@ -38,6 +38,7 @@ SIGMA_SPATIAL = 5.0  # pixels: the bilateral weight's spatial falloff (COLMAP: 5
 SIGMA_COLOUR = 0.08  # grey level 0..1: the bilateral weight's colour falloff (COLMAP: 3 / 255 of 0..1 intensities is too strict for JPEG noise)
 MIN_SOURCE_VARIANCE = 1e-5  # a warped window flatter than this has nothing to correlate
 MAX_REPROJECTION_PX = 3.0  # the geometric term's cap (COLMAP: 3 px)
+PIXEL_CHUNK = 4096  # pixels scored at once on the CPU (see plane_costs)
 MIN_GRAZING_COS = 0.05  # a plane seen this close to edge-on warps the window into a line: no hypothesis
 
 
@@ -86,6 +87,7 @@ class ReferenceWindows:
         self.weights = weights / weights.sum(-1, keepdim=True)  # (HW, M), rows sum to 1
         mean = (self.weights * values).sum(-1, keepdim=True)
         self.centred = values - mean  # (HW, M)
+        self.weighted_centred = self.weights * self.centred  # (HW, M): the NCC's covariance weights
         self.variance = (self.weights * self.centred ** 2).sum(-1)  # (HW,)
         u, v = torch.meshgrid(torch.arange(W, dtype=image.dtype, device=image.device) + 0.5,
                               torch.arange(H, dtype=image.dtype, device=image.device) + 0.5, indexing="xy")
@@ -117,60 +119,74 @@ def plane_costs(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor, dep
     worst = MAX_COST + (geometric_weight * MAX_REPROJECTION_PX if sources.depths is not None else 0.0)
     if S == 0 or N == 0:
         return torch.full((C, S, N), worst, dtype=dtype, device=ref.image.device)
-    rays = ref.rays[pixels]  # (N, 3)
-    weights = ref.weights[pixels]  # (N, M), gathered once for all candidates
-    weighted_centred = weights * ref.centred[pixels]
-    variance = ref.variance[pixels]
     h, w = sources.images.shape[-2:]
-    to_grid = torch.tensor([[2.0 / w, 0.0, -1.0], [0.0, 2.0 / h, -1.0], [0.0, 0.0, 1.0]], dtype=dtype, device=rays.device)
+    to_grid = torch.tensor([[2.0 / w, 0.0, -1.0], [0.0, 2.0 / h, -1.0], [0.0, 0.0, 1.0]], dtype=dtype, device=ref.image.device)
     G = to_grid @ sources.K @ sources.rotation  # (S, 3, 3)
     g = (to_grid @ sources.K @ sources.translation[..., None])[..., 0]  # (S, 3)
-    G_rays = rays @ G.transpose(1, 2)  # (S, N, 3)
     k0, k1 = ref.K_inv[:, 0], ref.K_inv[:, 1]
     Gk0, Gk1 = (G @ k0)[:, None, :], (G @ k1)[:, None, :]  # (S, 1, 3)
-    offsets = torch.cat([ref.offsets, torch.ones_like(ref.offsets[:, :1])], -1).T.contiguous()  # (3, M)
-    M = offsets.shape[1]
-    centre = M // 2
-    out = torch.empty((C, S, N), dtype=dtype, device=rays.device)
-    for c in range(C):
-        with stage("warp"):
-            normal, depth = normals[c], depths[c]
-            facing = (normal * rays).sum(-1)  # n . ray (negative: the normal faces the camera)
-            valid = (depth > 0) & (-facing / rays.norm(dim=-1) > MIN_GRAZING_COS)
-            depth = torch.where(valid, depth, torch.ones_like(depth))
-            rho = torch.where(valid, depth * facing, -torch.ones_like(facing))  # the plane n . X = rho
-            # The plane's homography for the window offset (du, dv) from the pixel centre, in the source's
-            # grid_sample coordinates: p = a du + b dv + c with a = G k0 + g (n . k0) / rho,
-            # b = G k1 + g (n . k1) / rho, c = G ray + g / d, where G = T K_s R, g = T K_s t, k0 and k1 the
-            # first columns of K^-1 and T maps pixels to [-1, 1]: one matrix product for every sample.
-            columns = torch.stack([Gk0 + g[:, None, :] * ((normal @ k0) / rho)[None, :, None],
-                                   Gk1 + g[:, None, :] * ((normal @ k1) / rho)[None, :, None],
-                                   G_rays + g[:, None, :] / depth[None, :, None]], dim=-1)  # (S, N, 3 coords, 3 columns)
-            projected = (columns.reshape(-1, 3) @ offsets).reshape(S, N, 3, M)
-            z = projected[:, :, 2:3]
-            in_front = z[:, :, 0, centre] > 1e-6
-            grid = torch.empty((S, N, M, 2), dtype=dtype, device=rays.device)
-            torch.div(projected[:, :, :2], z.clamp_min(1e-6), out=grid.permute(0, 1, 3, 2))
-        with stage("sampling"):
-            sampled = F.grid_sample(sources.images[:, None], grid, mode="bilinear", padding_mode="border",
-                                    align_corners=False)[:, 0]  # (S, N, M)
-        with stage("NCC"):
-            weighted = sampled * weights
-            mean_s = weighted.sum(-1)
-            var_s = (weighted * sampled).sum(-1) - mean_s ** 2
-            cov = (sampled * weighted_centred).sum(-1)
-            ncc = cov / (variance * var_s.clamp_min(0)).sqrt().clamp_min(1e-9)
-            centre_grid = grid[:, :, centre]  # (S, N, 2)
-            sees = in_front & (centre_grid.abs() <= 1.0).all(-1) & valid & (var_s > MIN_SOURCE_VARIANCE)
-            cost = torch.where(sees, 1.0 - ncc.clamp(-1.0, 1.0), torch.full_like(ncc, MAX_COST))
-        if sources.depths is not None:
-            with stage("geometric term"):
-                u0 = (centre_grid[..., 0] + 1.0) * (w / 2.0)
-                v0 = (centre_grid[..., 1] + 1.0) * (h / 2.0)
-                error = reprojection_error(ref, sources, pixels, depth, u0, v0, in_front)
-                cost = torch.where(sees, cost + geometric_weight * error, torch.full_like(cost, worst))
-        out[c] = cost
+    offsets_t = torch.cat([ref.offsets, torch.ones_like(ref.offsets[:, :1])], -1)  # (M, 3) (du, dv, 1)
+    out = torch.empty((C, S, N), dtype=dtype, device=ref.image.device)
+    # Pixels in chunks: a chunk's (S, chunk, M) intermediates stay in the CPU's cache, where the whole
+    # image's (tens of MB each) went through memory at every step (measured 1.6x on 2 cores).
+    chunk = N if ref.image.device.type != "cpu" else PIXEL_CHUNK
+    for start in range(0, N, chunk):
+        part = slice(start, min(N, start + chunk))
+        at = pixels[part]
+        rays = ref.rays[at]  # (n, 3)
+        weights = ref.weights[at]  # (n, M), gathered once for all candidates
+        weighted_centred = ref.weighted_centred[at]
+        variance = ref.variance[at]
+        G_rays = rays @ G.transpose(1, 2)  # (S, n, 3)
+        for c in range(C):
+            out[c, :, part] = _candidate_costs(ref, sources, at, rays, weights, weighted_centred, variance, G, g, G_rays,
+                                               Gk0, Gk1, k0, k1, offsets_t, depths[c, part], normals[c, part],
+                                               geometric_weight, worst)
     return out
+
+
+def _candidate_costs(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor, rays: Tensor, weights: Tensor,
+                     weighted_centred: Tensor, variance: Tensor, G: Tensor, g: Tensor, G_rays: Tensor, Gk0: Tensor,
+                     Gk1: Tensor, k0: Tensor, k1: Tensor, offsets_t: Tensor, depth: Tensor, normal: Tensor,
+                     geometric_weight: float, worst: float) -> Tensor:
+    """(S, n) costs of one plane per pixel (depth (n,), normal (n, 3)) at `pixels` (n,): `plane_costs`'s
+    inner step, with the per-pixel and per-source terms it prepared."""
+    S, N, M = len(sources), int(pixels.shape[0]), int(offsets_t.shape[0])
+    centre = M // 2
+    h, w = sources.images.shape[-2:]
+    with stage("warp"):
+        facing = (normal * rays).sum(-1)  # n . ray (negative: the normal faces the camera)
+        valid = (depth > 0) & (-facing / rays.norm(dim=-1) > MIN_GRAZING_COS)
+        depth = torch.where(valid, depth, torch.ones_like(depth))
+        rho = torch.where(valid, depth * facing, -torch.ones_like(facing))  # the plane n . X = rho
+        # The plane's homography for the window offset (du, dv) from the pixel centre, in the source's
+        # grid_sample coordinates: p = a du + b dv + c with a = G k0 + g (n . k0) / rho,
+        # b = G k1 + g (n . k1) / rho, c = G ray + g / d, where G = T K_s R, g = T K_s t, k0 and k1 the
+        # first columns of K^-1 and T maps pixels to [-1, 1]: one matrix product for every sample.
+        columns = torch.stack([Gk0 + g[:, None, :] * ((normal @ k0) / rho)[None, :, None],
+                               Gk1 + g[:, None, :] * ((normal @ k1) / rho)[None, :, None],
+                               G_rays + g[:, None, :] / depth[None, :, None]], dim=-1)  # (S, N, 3 coords, 3 columns)
+        projected = torch.einsum("mk,snck->snmc", offsets_t, columns)  # (S, N, M, 3)
+        in_front = projected[:, :, centre, 2] > 1e-6
+        grid = projected[..., :2] / projected[..., 2:].clamp_min(1e-6)  # (S, N, M, 2)
+    with stage("sampling"):
+        sampled = F.grid_sample(sources.images[:, None], grid, mode="bilinear", padding_mode="border",
+                                align_corners=False)[:, 0]  # (S, N, M)
+    with stage("NCC"):
+        mean_s = torch.einsum("snm,nm->sn", sampled, weights)
+        var_s = torch.einsum("snm,nm->sn", sampled * sampled, weights) - mean_s ** 2
+        cov = torch.einsum("snm,nm->sn", sampled, weighted_centred)
+        ncc = cov / (variance * var_s.clamp_min(0)).sqrt().clamp_min(1e-9)
+        centre_grid = grid[:, :, centre]  # (S, N, 2)
+        sees = in_front & (centre_grid.abs() <= 1.0).all(-1) & valid & (var_s > MIN_SOURCE_VARIANCE)
+        cost = torch.where(sees, 1.0 - ncc.clamp(-1.0, 1.0), torch.full_like(ncc, MAX_COST))
+    if sources.depths is not None:
+        with stage("geometric term"):
+            u0 = (centre_grid[..., 0] + 1.0) * (w / 2.0)
+            v0 = (centre_grid[..., 1] + 1.0) * (h / 2.0)
+            error = reprojection_error(ref, sources, pixels, depth, u0, v0, in_front)
+            cost = torch.where(sees, cost + geometric_weight * error, torch.full_like(cost, worst))
+    return cost
 
 
 def reprojection_error(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor, depths: Tensor, u: Tensor, v: Tensor,
