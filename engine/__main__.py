@@ -17,7 +17,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "info": (".capture.cli_info", "describe a capture: format, frames, resolution, poses"),
     "poses": (".poses.cli", "estimate camera poses with pycolmap and write the posed capture"),
     "reconstruct": (".recon.cli", "reconstruct a mesh from a capture"),
-    "texture": (".texture.cli", "bake a texture from the photos for a reconstructed mesh (GLB or OBJ)"),
+    "texture": (".texture_command", "bake a texture from the photos for a reconstructed mesh (GLB or OBJ)"),
     "convert-official": (".model.convert_official", "convert the authors' VoRTX checkpoint to safetensors"),
     "bench": (".bench", "benchmark the pipeline and its parts"),
     "synth": (".data.cli", "render synthetic rooms with Blender (ScanNet layout + ground truth)"),

@@ -6,6 +6,10 @@ same scale), so its cameras see the mesh where it is; a posed capture written by
 metric one (ScanNet, ARKit) works as it is. With the VR preset's defaults the mesh is decimated to
 the face budget first. Writes a .glb (texture embedded) or .obj + .mtl + _texture.png, and a JSON
 sidecar with what the bake did.
+
+An entry point above both engine/recon (the settings it offers as flags, `ReconSettings`) and
+engine/texture (the bake), as `engine reconstruct` is: engine/texture itself never imports engine/recon,
+while recon's settings read the texture options (tests/engine/test_import_directions.py).
 """
 
 from __future__ import annotations
@@ -15,17 +19,17 @@ import json
 import sys
 from pathlib import Path
 
-from ..capture import load_capture
-from ..errors import VortxError
-from ..jobs import TqdmProgress
-from ..mesh_io import read_ply
-from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
-from ..poses.prepare import SFM_NEVER, prepare_capture
-from ..recon.cli import sidecar_path
-from ..recon.settings import ReconSettings, add_setting_arguments
-from .files import TEXTURED_SUFFIXES, write_textured
-from .views import views_from_capture
-from .vr import textured_result
+from .capture import load_capture
+from .errors import VortxError
+from .jobs import TqdmProgress
+from .mesh_io import read_ply
+from .poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
+from .poses.prepare import SFM_NEVER, prepare_capture
+from .recon.settings import ReconSettings, add_setting_arguments
+from .sidecar import sidecar_path
+from .texture.files import TEXTURED_SUFFIXES, write_textured
+from .texture.views import views_from_capture
+from .texture.vr import textured_result
 
 TEXTURE_FLAGS = ("texture_size", "face_budget", "headset")
 LITTLE_SEEN = 0.05  # below this share of the texels seen by a photo, the capture and mesh do not match

@@ -24,6 +24,7 @@ from ..capture import load_capture
 from ..errors import VortxError
 from ..jobs import TqdmProgress
 from ..mesh_io import write_ply
+from ..sidecar import sidecar_path
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import KEEP_POSES_HELP, SFM_IF_UNPOSED, PreparedCapture, prepare_capture
 from ..texture.files import write_textured
@@ -67,10 +68,6 @@ def settings_from_args(args: argparse.Namespace) -> ReconSettings:
 def write_mesh(path: Path, mesh: Any) -> None:
     """A PLY with vertex colours and the confidence layer (the textured formats: engine/texture/files.py)."""
     write_ply(path, mesh.vertices, mesh.faces, normals=mesh.normals, colors=mesh.colors, attributes=mesh.attributes)
-
-
-def sidecar_path(mesh_path: Path) -> Path:
-    return mesh_path.with_suffix(".json")
 
 
 def report_preparation(prepared: PreparedCapture) -> None:
