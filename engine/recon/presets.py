@@ -16,8 +16,9 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Iterable, Mapping, Optional
 
 from ..errors import VortxError
+from ..finish.modes import FINISH_ROOM
 from ..stereo.options import MATCHER_FAST, MATCHER_PATCHMATCH
-from .settings import (ReconSettings, cli_flag, field_default, given_settings, refuse_ignored_settings,
+from .settings import (ReconSettings, cli_flag, field_default, given_settings, methods_using, refuse_ignored_settings,
                        setting_fields, settings_from_arguments)
 
 # The demo room (samples/demo_room, 36 photos of 320 x 240) posed as `make demo` poses it
@@ -56,7 +57,9 @@ class QualityPreset:
 PRESETS: tuple[QualityPreset, ...] = (
     QualityPreset(
         "preview", "Preview",
-        {"stereo_matcher": MATCHER_FAST, "stereo_image_size": 160, "stereo_views": 16},
+        # Finish Room on every preset: on the demo room it lifts F by 0.09 with Preview's maps too
+        # (docs/experiments.md, "A finished room"), and costs about a CPU second.
+        {"stereo_matcher": MATCHER_FAST, "stereo_image_size": 160, "stereo_views": 16, "finish": FINISH_ROOM},
         "Fast matcher, 160 px stereo photos, 16 depth maps: a quick look at the room",
         demo_seconds=132),
     QualityPreset(
@@ -65,7 +68,7 @@ PRESETS: tuple[QualityPreset, ...] = (
         demo_seconds=298),
     QualityPreset(
         "high", "High",
-        {"stereo_matcher": MATCHER_PATCHMATCH, "stereo_image_size": 320},
+        {"stereo_matcher": MATCHER_PATCHMATCH, "stereo_image_size": 320, "finish": FINISH_ROOM},
         "PatchMatch matcher (slanted planes per pixel), 320 px stereo photos: smoother walls and floors, slower",
         # `reconstruct` of the demo room on its true poses with one thread while the machine's load average
         # was 8-10 (docs/experiments.md "PatchMatch stereo"; Standard took 206 s measured the same way).
@@ -128,7 +131,8 @@ def refuse_unused_quality(settings: ReconSettings, name: str, given: Iterable[st
     try:
         refuse_ignored_settings(settings, set_by_preset)
     except VortxError:
-        flags = ", ".join(cli_flag(f) for f in setting_fields() if f.name in set_by_preset)
+        flags = ", ".join(cli_flag(f) for f in setting_fields()  # only those the method does not read
+                          if f.name in set_by_preset and settings.method not in methods_using(f))
         raise VortxError(f"--quality {name} sets {flags}, which --method {settings.method} does not use here: leave "
                          f"--quality out (or use --quality {DEFAULT_QUALITY}), or use --method stereo") from None
 
