@@ -28,10 +28,10 @@ import numpy as np
 from scipy import ndimage
 
 from ..mesh_io import Mesh
-from ..observation import ADDED  # vertex attribute: 1 on faces the finishing added (not seen), 0 elsewhere
 from ..meshops import compact, face_pieces, keep_faces, vertex_normals
-from .modes import FINISH_CLEAN, FINISH_MODES, FINISH_OFF, FINISH_ROOM
+from ..observation import ADDED  # vertex attribute: 1 on faces the finishing added (not seen), 0 elsewhere
 from .free_space import DepthView, Votes, view_votes
+from .modes import FINISH_CLEAN, FINISH_MODES, FINISH_OFF, FINISH_ROOM
 from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_structural_planes
 
 
