@@ -39,7 +39,7 @@ import numpy as np
 from .. import engine
 from ..engine.colour_space import linear_to_srgb, srgb_to_linear  # noqa: F401 (re-exported)
 from ..engine.mesh_io import Mesh
-from ..engine.observation import EVIDENCE_ATTRIBUTES, observation_colours
+from ..engine.observation import ADDED, EVIDENCE_ATTRIBUTES, observation_colours
 from .scene_objects import ensure_tagged_collection, find_tagged_collection, place_new
 
 RESULT_COLLECTION_NAME = "VoRTX Result"
@@ -57,6 +57,9 @@ TEXTURE_MATERIAL_NAME = "VoRTX Texture"
 TEXTURE_NODE = "VoRTX Photo Texture"  # its Image Texture node
 TEXTURE_OBSERVATION_NODE = "VoRTX Observation"  # its Color Attribute node reading the confidence layer
 DECIMATE_MODIFIER = "VoRTX Decimate"
+# The faces the finishing stage added where no photo saw surface (engine/finish), as a BOOLEAN face
+# attribute: Edit Mode > Select > By Attribute selects them (to delete, or to give them a material).
+ADDED_FACES_ATTRIBUTE = "added_faces"
 
 # Custom properties on a result object.
 PROP_CAPTURE = "vortx_capture"
@@ -133,10 +136,23 @@ def build_mesh(
         set_vertex_attributes(mesh, attributes or {})
         if colors is not None:
             set_point_colours(mesh, colors)
+        if attributes and ADDED in attributes:  # last: the active attribute is set by index
+            set_added_faces(mesh, faces, attributes[ADDED])
     except Exception:
         bpy.data.meshes.remove(mesh)
         raise
     return mesh
+
+
+def set_added_faces(mesh: bpy.types.Mesh, faces: np.ndarray, added: np.ndarray) -> bpy.types.Attribute:
+    """The BOOLEAN face attribute ADDED_FACES_ATTRIBUTE: True on the faces (F, 3) whose corners are all
+    marked added (`added` (V,) 1 / 0, the engine's ADDED vertex attribute), made the active attribute so
+    Select > By Attribute picks them at once."""
+    flags = (np.asarray(added, np.float32)[np.asarray(faces).reshape(-1, 3)] > 0.5).all(axis=1)
+    attribute = mesh.attributes.new(ADDED_FACES_ATTRIBUTE, "BOOLEAN", "FACE")
+    attribute.data.foreach_set("value", flags)
+    mesh.attributes.active_index = mesh.attributes.find(ADDED_FACES_ATTRIBUTE)
+    return attribute
 
 
 def set_point_colours(mesh: bpy.types.Mesh, colors: np.ndarray) -> bpy.types.Attribute:

@@ -190,3 +190,20 @@ def test_export_writes_photo_colours_while_the_observation_is_shown(blender, emp
     written = blender.engine.mesh_io.read_ply(path)
     np.testing.assert_allclose(written.colors, GREY, atol=0.01)
     assert obj.data.color_attributes.active_color_name == "Observation" and obj.vortx_show_observation
+
+
+def test_faces_the_finishing_added_are_a_selectable_face_attribute(blender, empty_scene) -> None:
+    """The engine's ADDED vertex attribute (1 on faces added where no photo saw surface) becomes a BOOLEAN
+    face attribute, active, true exactly on the faces whose three corners are added (here: the sheet's
+    faces with x < 1, computed from the sheet's own layout)."""
+    mesh = sheet(blender, evidence=False)
+    added = (mesh.vertices[:, 0] <= 1.0).astype(np.float32)
+    mesh.attributes = {blender.engine.observation.ADDED: added}
+    obj = insert(blender, empty_scene, mesh)
+    attribute = obj.data.attributes[blender.vortx_blender.result.ADDED_FACES_ATTRIBUTE]
+    assert (attribute.domain, attribute.data_type) == ("FACE", "BOOLEAN")
+    assert obj.data.attributes.active.name == attribute.name
+    values = np.zeros(len(obj.data.polygons), bool)
+    attribute.data.foreach_get("value", values)
+    centres = np.array([p.center[:] for p in obj.data.polygons])
+    np.testing.assert_array_equal(values, centres[:, 0] < 1.0)
