@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from engine.errors import VortxError
+from engine.observation import ADDED
 from engine.texture.files import write_glb, write_textured, write_textured_obj
 from fixtures_gltf import assert_valid_gltf  # the Khronos glTF-Validator on every GLB written here
 from fixtures_texture import read_glb  # an independent reader: the writer is not checked with its own code
@@ -111,3 +112,15 @@ def test_write_textured_picks_the_format_by_suffix(tmp_path):
     assert [p.name for p in write_textured(tmp_path / "b.obj", square())] == ["b.obj", "b.mtl", "b_texture.png"]
     with pytest.raises(VortxError, match=".glb, .obj or .usdz"):
         write_textured(tmp_path / "c.ply", square())
+
+
+def test_glb_carries_the_added_faces_mark_and_stays_valid(tmp_path):
+    """A finished mesh's ADDED attribute (engine/finish) travels as the application attribute _ADDED, and
+    the Khronos validator finds nothing to say about it."""
+    mesh = square()
+    mesh.attributes = {**mesh.attributes, ADDED: np.float32([0, 0, 1, 1])}
+    path = write_glb(tmp_path / "room.glb", mesh)
+    assert_valid_gltf(path)
+    document, binary = read_glb(path)
+    primitive = document["meshes"][0]["primitives"][0]
+    np.testing.assert_allclose(accessor(document, binary, primitive["attributes"]["_" + ADDED.upper()]), [0, 0, 1, 1])
