@@ -265,13 +265,13 @@ def rotation_about(axis: Sequence[float], degrees: float) -> np.ndarray:
     return np.eye(3) + np.sin(a) * x + (1 - np.cos(a)) * x @ x
 
 
-def perturbed_poses(truth: list[np.ndarray], rng: np.random.Generator) -> list[np.ndarray]:
-    """Each pose turned 0.5-2 deg about a random axis (in the camera frame) and moved up to 3 cm per
-    axis: tracker poses slightly off against the photos, for pose refinement tests."""
+def perturbed_poses(truth: list[np.ndarray], rng: np.random.Generator, max_shift: float = 0.03) -> list[np.ndarray]:
+    """Each pose turned 0.5-2 deg about a random axis (in the camera frame) and moved up to `max_shift`
+    metres per axis: tracker poses slightly off against the photos, for pose check and refinement tests."""
     out = []
     for pose in truth:
         p = pose.copy()
         p[:3, :3] = pose[:3, :3] @ rotation_about(rng.standard_normal(3), rng.uniform(0.5, 2.0))
-        p[:3, 3] += rng.uniform(-0.03, 0.03, 3)
+        p[:3, 3] += rng.uniform(-max_shift, max_shift, 3)
         out.append(p)
     return out

@@ -96,12 +96,17 @@ class RefinedPoses:
     def summary(self) -> str:
         """One line for the report: how many frames moved and by how much (median / max)."""
         r = self.result
+        if r.kept_given:
+            return f"Kept the given poses: {r.kept_given}"
         return (f"Refined {len(r.refined)} of {len(r.changes)} posed frames: rotation changed by "
                 f"{r.rotation_deg_median:.2f} deg median, {r.rotation_deg_max:.2f} deg max; position by "
                 f"{_length(r.translation_median, r.units)} median, {_length(r.translation_max, r.units)} max")
 
     def frame_warnings(self) -> list[str]:
-        """One warning per frame that kept its given pose: refused (it moved too far) or not refined."""
+        """One warning per frame that kept its given pose: refused (it moved too far) or not refined
+        (none when the refinement as a whole kept the given poses: the summary says why)."""
+        if self.result.kept_given:
+            return []
         return [f"{change.name} {change.status} ({change.reason}); it keeps its given pose"
                 for change in self.result.changes if change.status != STATUS_REFINED]
 
@@ -122,13 +127,16 @@ def refine_poses_job(capture: Capture, options: Optional["RefineOptions"] = None
 
 def apply_refined_poses(scene: "bpy.types.Scene", refined: "RefineResult") -> None:
     """Move the scene's capture cameras to `refined`'s poses (main thread), add its sparse points when
-    the scene has none, and record that the poses were refined (which clears the pose check's warning)."""
-    move_capture_cameras(scene, [f.pose for f in refined.capture.posed_frames])
+    the scene has none, and record that the poses were refined (which clears the pose check's warning).
+    When the refinement kept the given poses (they were no worse), the cameras stay and the status says so."""
+    if not refined.kept_given:
+        move_capture_cameras(scene, [f.pose for f in refined.capture.posed_frames])
     if find_point_cloud(scene) is None and len(refined.points):
         apply_point_cloud(scene, *checked_points(refined.points, refined.point_colors))
     settings = scene.vortx
-    if "refined" not in settings.pose_status:
-        settings.pose_status = f"{settings.pose_status}, refined"
+    mark = "kept as given" if refined.kept_given else "refined"
+    if mark not in settings.pose_status:
+        settings.pose_status = f"{settings.pose_status}, {mark}"
     settings.pose_source = POSES_REFINED
     settings.pose_check = ""
     print(refined.report)

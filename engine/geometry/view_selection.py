@@ -25,7 +25,14 @@ import numpy as np
 from .cameras import project_points
 
 
-def select_keyframes(poses: np.ndarray, min_translation: float = 0.1, min_angle_deg: float = 15.0) -> np.ndarray:
+# The keyframe rule's defaults (vortx-spec.md section 2): the reconstruction's settings and the pose
+# refinement (which adjusts the frames reconstruction will use) read them from here.
+DEFAULT_KEYFRAME_TRANSLATION_M = 0.1
+DEFAULT_KEYFRAME_ANGLE_DEG = 15.0
+
+
+def select_keyframes(poses: np.ndarray, min_translation: float = DEFAULT_KEYFRAME_TRANSLATION_M,
+                     min_angle_deg: float = DEFAULT_KEYFRAME_ANGLE_DEG) -> np.ndarray:
     """Indices (K,) int64 of the kept frames, in input order; frames with non-finite poses are skipped.
 
     poses: (F, 4, 4) camera-to-world, OpenCV axes (the optical axis is the rotation's third column).

@@ -9,8 +9,9 @@ through each of them:
   floor can be found, scaled from the camera height (`align_gravity_and_scale`);
 - metric layouts (ScanNet, metric transforms.json) pass through untouched;
 - with `refine=True`, given poses (tracker, ARKit, SLAM, RGB-D rig) are first refined against the
-  photos (`refine.refine_poses`: pycolmap triangulation + bundle adjustment, brought back to the
-  given world); its triangulated points then serve the floor search of the alignment. Poses that
+  photos (`refine.refine_poses`: triangulation with the given poses, bundle adjustment that keeps
+  their camera centres, so the capture's scale); its triangulated points then serve the floor search
+  of the alignment. Poses that
   structure from motion just estimated are not refined again (bundle adjustment already did it).
 
 `PreparedCapture` says what was done (scale source, one-line description, warnings), so every entry
@@ -195,9 +196,13 @@ def prepare_capture(
     if check_note:
         prepared.notes.append(check_note)
     if refined_because_off:
-        assert check is not None and check.mean_reprojection_error_px is not None
-        prepared.notes.append(f"the given poses disagreed with the photos ({check.mean_reprojection_error_px:.2f} px mean "
-                              f"reprojection error), so they were refined before reconstruction ({KEEP_POSES_HINT})")
+        assert check is not None and check.mean_reprojection_error_px is not None and refinement is not None
+        if refinement.kept_given:
+            prepared.notes.append(f"the given poses disagreed with the photos ({check.mean_reprojection_error_px:.2f} px "
+                                  f"mean reprojection error), but refining them did not help, so they are used as given")
+        else:
+            prepared.notes.append(f"the given poses disagreed with the photos ({check.mean_reprojection_error_px:.2f} px "
+                                  f"mean reprojection error), so they were refined before reconstruction ({KEEP_POSES_HINT})")
     elif check is not None and check.poses_off:
         prepared.warnings.append(check.message)
     elif check is not None and check.message:
@@ -225,6 +230,13 @@ def refinement_summary(result: "RefineResult") -> dict:
         "not_refined": {c.name: c.reason for c in result.changes if c.status == STATUS_NOT_REFINED},
         "points": int(len(result.points)),
         "mean_reprojection_error_px": result.mean_reprojection_error,
+        "given_reprojection_error_px": result.error_given_px,
+        "adjusted_frames": result.adjusted_frames,
+        "adjustment": result.adjustment,
+        "focal_scale": list(result.focal_scale),
+        "stretch_scales": [{"kind": s.kind, "first": s.first, "last": s.last, "frames": s.frames, "scale": s.scale}
+                           for s in result.stretches],
+        "kept_given": result.kept_given,
         "timings_s": dict(result.timings),
     }
 

@@ -31,7 +31,8 @@ STAGE_LABELS = {
     "extract": "poses: SIFT features",
     "match": "poses: matching",
     "map": "poses: mapping",
-    "adjust": "poses: triangulate and bundle-adjust",
+    "triangulate": "poses: triangulate with the given poses",
+    "adjust": "poses: bundle adjustment",
 }
 
 _EXTRACTED = re.compile(r"Processed file \[(\d+)/(\d+)\]")
@@ -169,6 +170,7 @@ def run_pose_job(
 ) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
     """Run one sfm_worker job in `work` (job.json in, result.json + points.npz out) and read its
     result: (result, points (N, 3), colours (N, 3)). `work` is removed afterwards unless keep_work.
+    A refine job's tracks (points.npz's obs_* arrays) come in result["tracks"] as arrays.
 
     Raises Cancelled, or PoseError naming the task when the process fails or leaves no result.
     """
@@ -179,6 +181,8 @@ def run_pose_job(
         try:
             result = json.loads((work / "result.json").read_text())
             with np.load(work / "points.npz") as npz:
+                if "obs_image" in npz:
+                    result["tracks"] = {key: npz[key] for key in ("obs_image", "obs_point", "obs_uv")}
                 return result, npz["xyz"], npz["rgb"]
         except (OSError, ValueError) as error:
             raise PoseError(f"the {task} process ended without a usable result ({error}); "

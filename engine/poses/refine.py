@@ -2,38 +2,35 @@
 
 Stereo and fusion need poses good to a fraction of a degree; trackers are often off by a few
 tenths of a degree to 2 degrees, or by a fixed offset between the colour and the tracking camera.
-`refine_poses` keeps the given poses as the starting point and:
-1. pairs each frame with its neighbours, in capture order and by pose (nearby cameras looking the
-   same way: they share most of the view);
+Their camera centres, though, carry the capture's scale, and bundle adjustment with a free gauge
+rescales weakly linked stretches of a trajectory (the SUN3D study room's first stretch by 13-19 %).
+So `refine_poses` takes the given poses as the gauge, as COLMAP's "known poses" recipe and OpenMVS do:
+1. only the frames reconstruction uses: the keyframes of a metric capture (`select_keyframes`, the
+   reconstruction's own rule), each paired with its neighbours by pose and in capture order;
 2. in the COLMAP worker process (`sfm_worker.py`, kind "refine": a COLMAP abort must not take
-   Blender down): SIFT features, matches for those pairs, triangulation with the given poses and
-   intrinsics (held fixed), bundle adjustment, retriangulation, ... until the poses settle;
-3. brings the adjusted trajectory back to the given poses' world (gravity, origin and metric scale)
-   with a similarity fit (`align.fit_pose_similarity`, robust: frames that moved too far are left
-   out of the fit);
-4. measures each frame's change against its given pose. A frame that moved more than
-   `max_rotation_deg` or the translation limit looks like a failure (or a wrong given pose): it
-   keeps its given pose and is listed as refused; frames the photos could not constrain (too few
-   triangulated points) keep theirs and are listed as not refined. When too many frames are
-   refused, the refinement as a whole is refused with PoseError (the numbers and what to do).
+   Blender down): SIFT features, matches for those pairs, one triangulation with the given poses;
+3. bundle adjustment here (`adjust.py`): rotations, one focal scale per intrinsics group and the
+   points, camera centres held at the given ones; then, as a second pass, the centres free within a
+   tight prior around the given ones, kept only when it lowers the reprojection error measurably and
+   no stretch of the trajectory changes scale by more than `max_stretch_scale_change`;
+4. judged before it is used: unless the refined poses explain the photos better than the given ones
+   (mean reprojection error lower by `min_gain`), the given poses are kept and the result says so;
+5. frames between keyframes follow their neighbouring keyframes' corrections (interpolated in
+   capture order); each frame's change is measured against its given pose. A frame that turned more
+   than `max_rotation_deg` (or moved more than the translation limit) keeps its given pose and is
+   listed as refused; keyframes the photos could not constrain keep theirs and are listed as not
+   refined. When too many are refused, the refinement as a whole is refused with PoseError.
 
-Public API (the CLI's `engine poses --refine`, `engine reconstruct --refine-poses`, Blender and the
-batch script call this):
+Public API (the CLI's `engine poses --refine`, `engine reconstruct`, Blender and the batch call this):
 - `refine_poses(capture, options=None, progress=None, cancel=None) -> RefineResult`;
-- `RefineOptions` (max_side, neighbours, sequential_neighbours, expected_error_deg, rounds,
-  max_rotation_deg, max_translation_m, max_translation_fraction, min_points, max_refused_share,
-  max_num_features, num_threads, work_dir);
-- `RefineResult`: capture (same frames in the same order; refined poses where accepted), changes
-  (`FrameChange` per posed frame: name, rotation_deg, translation, status "refined" | "refused" |
-  "not refined", reason), refined / refused / not_refined (names), rotation_deg_median/_max and
-  translation_median/_max (over refined frames), units ("m" or "units"), points (N, 3) and
-  point_colors (N, 3) uint8 in the capture's world, mean_reprojection_error (px of the photos
-  refinement ran on), rounds, timings, warnings, and `report` (lines for the CLI / Blender console).
+- `RefineOptions`, `RefineResult` (capture, changes per frame, stretch scales, errors before and
+  after, timings per stage, `report`), `FrameChange`, `StretchScale`.
 """
 
 from __future__ import annotations
 
 import tempfile
+import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Optional
@@ -43,26 +40,52 @@ import numpy as np
 from ..capture.model import Capture, Frame
 from ..capture.naming import name_list
 from ..errors import PoseError
-from ..jobs import CancelToken, ProgressCallback, check
-from .align import Similarity, fit_pose_similarity, rotation_angle_deg
+from ..geometry.view_selection import DEFAULT_KEYFRAME_ANGLE_DEG, DEFAULT_KEYFRAME_TRANSLATION_M, select_keyframes
+from ..jobs import CancelToken, ProgressCallback, check, report
+from .adjust import AdjustOptions, Tracks, adjust, rodrigues
+from .align import rotation_angle_deg, umeyama
 from .process import run_pose_job
 
 STATUS_REFINED = "refined"
 STATUS_REFUSED = "refused"
 STATUS_NOT_REFINED = "not refined"
 
+PASS_HELD = "camera positions held"
+PASS_PRIORS = "camera positions within priors"
+
 
 @dataclass
 class RefineOptions:
     max_side: int = 1024  # downscale photos so their larger side is at most this; 0 = full size
+    # "keyframes": a metric capture's keyframes are adjusted and the frames between follow them;
+    # "all": every posed frame is adjusted (captures in arbitrary units always use all).
+    frames: str = "keyframes"
+    keyframe_translation: float = DEFAULT_KEYFRAME_TRANSLATION_M  # the reconstruction's keyframe rule
+    keyframe_angle_deg: float = DEFAULT_KEYFRAME_ANGLE_DEG
+    # ... plus the frames kept at 1/densify of those thresholds (see frames_to_adjust). Measured on the
+    # SUN3D room (docs/experiments.md): 3 (39 of 99 frames) 0.32 of the depth within 5 %, 6 (58) 0.40,
+    # every frame 0.39.
+    densify: float = 6.0
     neighbours: int = 8  # frames each frame is matched with, chosen by pose (nearby, looking the same way)
     sequential_neighbours: int = 3  # and the next frames in capture order
-    expected_error_deg: float = 3.0  # the first triangulation tolerates given poses this far off
-    rounds: int = 6  # most triangulate + bundle adjustment rounds (stops earlier once the poses settle)
+    expected_error_deg: float = 3.0  # the triangulation tolerates given poses this far off
+    # Second pass: camera centres free within this prior (metres for metric captures, else a share of
+    # the trajectory's extent / 100 per unit); 0 skips the pass. Off by default: on the SUN3D room
+    # (2 cm) it lowered the reprojection error 0.73 -> 0.63 px but made the depth maps 7 % too shallow
+    # (depth within 5 % at their own scale 0.40 -> 0.35; docs/experiments.md).
+    position_sigma_m: float = 0.0
+    min_position_gain: float = 0.1  # the second pass is kept only when it lowers the error by this share more
+    max_stretch_scale_change: float = 0.02  # ... and no stretch's scale changes by more than this
+    # One focal scale per group of frames sharing intrinsics. Off: on the SUN3D room it moved the focal
+    # 0.8-1.5 % for a 0.3 % lower reprojection error, too weakly determined to trust over a calibration.
+    refine_focal: bool = False
+    min_gain: float = 0.1  # refined poses must lower the mean reprojection error by this share, else the given stay
     max_rotation_deg: float = 10.0  # a frame turning more than this is refused (keeps its given pose)
     max_translation_m: float = 0.5  # ... or moving more than this, for metric captures
     max_translation_fraction: float = 0.1  # ... or, in arbitrary units, this share of the trajectory's extent
-    min_points: int = 30  # a frame seeing fewer triangulated points is not refined
+    # A frame seeing fewer triangulated points (that two other frames also see) is not refined. With
+    # its centre held a frame has 3 unknowns, so 10 points over-determine it sevenfold.
+    min_points: int = 10
     max_refused_share: float = 0.25  # refuse the whole refinement when more frames than this are refused
     max_num_features: int = 8192  # SIFT features per photo
     num_threads: int = -1  # -1: all cores
@@ -78,6 +101,20 @@ class FrameChange:
     reason: str = ""  # why it was refused or not refined
 
 
+@dataclass(frozen=True)
+class StretchScale:
+    """A part of the trajectory and the scale of its refined camera centres against the given ones."""
+
+    kind: str  # "stretch": frames between jumps in capture order; "group": frames linked by shared points
+    first: str  # name of its first frame
+    last: str  # name of its last frame
+    frames: int  # adjusted frames in it
+    scale: float  # similarity scale, refined -> given centres (1 = the given scale kept)
+
+    def describe(self) -> str:
+        return f"{self.kind} {self.first}..{self.last} ({self.frames} frames): scale {self.scale:.3f}"
+
+
 @dataclass
 class RefineResult:
     capture: Capture  # the given capture with refined poses where accepted (same frames, same order)
@@ -85,12 +122,17 @@ class RefineResult:
     units: str  # "m" for metric captures, else "units" (the capture's own)
     points: np.ndarray  # (N, 3) float64 triangulated points in the capture's world
     point_colors: np.ndarray  # (N, 3) uint8 RGB
-    mean_reprojection_error: float  # pixels of the photos refinement ran on
+    mean_reprojection_error: float  # px of the photos refinement ran on, with the poses returned
+    error_given_px: float  # ... with the given poses (points fitted to them), on the same observations
     scaled_size: tuple[int, int]  # (width, height) of those photos
-    rounds: int
-    similarity: Similarity  # adjusted world -> given world
+    adjusted_frames: int  # frames bundle adjustment ran on (keyframes); the others followed them
+    adjustment: str  # PASS_HELD or PASS_PRIORS: what the returned poses come from
+    focal_scale: list[float]  # per intrinsics group, 1 = as given
+    stretches: list[StretchScale] = field(default_factory=list)
+    kept_given: str = ""  # why the given poses were kept (the refinement did not help); "" when refined
     timings: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     def _names(self, status: str) -> list[str]:
         return [c.name for c in self.changes if c.status == status]
@@ -131,18 +173,26 @@ class RefineResult:
     def report(self) -> str:
         total = len(self.changes)
         lines = [
-            f"Pose refinement: pycolmap triangulation + bundle adjustment from the given poses, photos at "
-            f"{self.scaled_size[0]}x{self.scaled_size[1]}, {self.rounds} rounds",
-            f"  refined {len(self.refined)} of {total} posed frames: rotation changed by {self.rotation_deg_median:.2f} deg "
-            f"median, {self.rotation_deg_max:.2f} deg max; position by {_length(self.translation_median, self.units)} "
-            f"median, {_length(self.translation_max, self.units)} max",
-            f"  mean reprojection error {self.mean_reprojection_error:.2f} px, {len(self.points)} 3D points",
+            f"Pose refinement: triangulation with the given poses + bundle adjustment ({self.adjustment}) of "
+            f"{self.adjusted_frames} frames, photos at {self.scaled_size[0]}x{self.scaled_size[1]}",
+            f"  reprojection error {self.error_given_px:.2f} px with the given poses, {self.mean_reprojection_error:.2f} px "
+            f"refined ({len(self.points)} 3D points); focal scale "
+            + ", ".join(f"{s:.4f}" for s in self.focal_scale),
         ]
+        if self.kept_given:
+            lines.append(f"  kept the given poses: {self.kept_given}")
+        else:
+            lines.append(
+                f"  refined {len(self.refined)} of {total} posed frames: rotation changed by {self.rotation_deg_median:.2f} deg "
+                f"median, {self.rotation_deg_max:.2f} deg max; position by {_length(self.translation_median, self.units)} "
+                f"median, {_length(self.translation_max, self.units)} max")
+        lines += [f"  {s.describe()}" for s in self.stretches]
         for change in self.changes:
-            if change.status != STATUS_REFINED:
+            if change.status != STATUS_REFINED and not self.kept_given:
                 lines.append(f"  {change.status}: {change.name} ({change.reason}); it keeps its given pose")
         if self.timings:
             lines.append("  time: " + ", ".join(f"{k} {v:.1f} s" for k, v in self.timings.items()))
+        lines += [f"  note: {n}" for n in self.notes]
         lines += [f"  warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -178,6 +228,24 @@ def neighbour_pairs(poses_c2w: np.ndarray, neighbours: int, sequential: int) -> 
     return sorted(pairs)
 
 
+def frames_to_adjust(poses_c2w: np.ndarray, metric: bool, options: RefineOptions) -> np.ndarray:
+    """Indices (K,) into `poses_c2w` (N, 4, 4) of the frames bundle adjustment runs on.
+
+    A metric capture: the reconstruction's keyframes (its own rule and thresholds, so each is adjusted
+    itself, not interpolated) plus the frames the same rule keeps at `1 / densify` of the thresholds
+    (neighbours that tie the keyframes together with longer tracks); else every frame. Always the
+    first and the last frame, so every other frame lies between two adjusted ones."""
+    if options.frames not in ("keyframes", "all"):
+        raise ValueError(f"RefineOptions.frames must be 'keyframes' or 'all', got {options.frames!r}")
+    count = len(poses_c2w)
+    if options.frames == "all" or not metric:
+        return np.arange(count)
+    keyframes = select_keyframes(poses_c2w, options.keyframe_translation, options.keyframe_angle_deg)
+    density = max(1.0, float(options.densify))
+    neighbours = select_keyframes(poses_c2w, options.keyframe_translation / density, options.keyframe_angle_deg / density)
+    return np.unique(np.concatenate([keyframes, neighbours, [0, count - 1]])).astype(np.int64)
+
+
 def refine_poses(
     capture: Capture,
     options: Optional[RefineOptions] = None,
@@ -199,26 +267,27 @@ def refine_poses(
     if missing_K:
         raise PoseError(f"pose refinement needs the intrinsics of every posed frame; {name_list(missing_K)} have none")
     check(cancel)
-    given = np.stack([f.pose for f in frames])
-    names = [f"{i:06d}.jpg" for i in range(len(frames))]
+    given = np.stack([f.pose for f in frames]).astype(np.float64)
+    chosen = frames_to_adjust(given, capture.metric, options)
+    names = [f"{i:06d}.jpg" for i in range(len(chosen))]
     work = Path(options.work_dir) if options.work_dir else Path(tempfile.mkdtemp(prefix="vortx-refine-"))
     work.mkdir(parents=True, exist_ok=True)
     job = {
         "kind": "refine",
         "work_dir": str(work),
-        "images": [{"path": str(f.image_path), "name": n} for f, n in zip(frames, names)],
+        "images": [{"path": str(frames[k].image_path), "name": n} for k, n in zip(chosen, names)],
         "max_side": int(options.max_side),
         "max_num_features": int(options.max_num_features),
         "num_threads": int(options.num_threads),
-        "K_per_image": [np.asarray(f.K, dtype=np.float64).tolist() for f in frames],
-        "cam_from_world": [_cam_from_world(p).tolist() for p in given],
-        "pairs": [list(p) for p in neighbour_pairs(given, options.neighbours, options.sequential_neighbours)],
-        "rounds": int(options.rounds),
+        "K_per_image": [np.asarray(frames[k].K, dtype=np.float64).tolist() for k in chosen],
+        "cam_from_world": [_cam_from_world(given[k]).tolist() for k in chosen],
+        "pairs": [list(p) for p in neighbour_pairs(given[chosen], options.neighbours, options.sequential_neighbours)],
         "loose_angle_deg": float(options.expected_error_deg),
     }
     result, xyz, rgb = run_pose_job(job, work, keep_work=options.work_dir is not None, task="pose refinement",
                                     progress=progress, cancel=cancel)
-    return _accepted(capture, posed_index, given, names, result, xyz, rgb, options)
+    check(cancel)
+    return _adjusted(capture, posed_index, given, chosen, result, xyz, rgb, options, progress)
 
 
 def _cam_from_world(c2w: np.ndarray) -> np.ndarray:
@@ -234,67 +303,242 @@ def _cam_to_world(cam_from_world: np.ndarray) -> np.ndarray:
     return pose
 
 
-def _accepted(
+def _intrinsic_groups(Ks: np.ndarray) -> np.ndarray:
+    """(C,) int: cameras with the same K share a group (one focal scale)."""
+    groups = np.zeros(len(Ks), dtype=np.int64)
+    seen: list[np.ndarray] = []
+    for c, K in enumerate(Ks):
+        for g, other in enumerate(seen):
+            if np.allclose(K, other, rtol=1e-6, atol=1e-6):
+                groups[c] = g
+                break
+        else:
+            groups[c] = len(seen)
+            seen.append(K)
+    return groups
+
+
+def _adjusted(
     capture: Capture,
     posed_index: list[int],
     given: np.ndarray,
-    names: list[str],
+    chosen: np.ndarray,
     result: dict,
     xyz: np.ndarray,
     rgb: np.ndarray,
     options: RefineOptions,
+    progress: Optional[ProgressCallback] = None,
 ) -> RefineResult:
-    """Fit the adjusted trajectory to the given one, measure each frame's change, accept or refuse."""
-    frames = [capture.frames[i] for i in posed_index]
-    by_name = {im["name"]: im for im in result["images"]}
-    units = "m" if capture.metric else "units"
-    extent = float(np.max(np.linalg.norm(given[:, None, :3, 3] - given[None, :, :3, 3], axis=-1)))
-    max_translation = options.max_translation_m if capture.metric else options.max_translation_fraction * extent
+    """Adjust the triangulated tracks with the given centres as the gauge, judge, and apply to every frame.
 
-    adjusted: dict[int, np.ndarray] = {}
-    reasons: dict[int, str] = {}
-    for k, name in enumerate(names):
-        image = by_name.get(name)
-        seen = 0 if image is None else int(image["num_points3D"])
-        if seen < options.min_points:
-            reasons[k] = f"it sees {seen} triangulated points, fewer than {options.min_points}"
+    given: (N, 4, 4) camera-to-world of the posed frames; chosen: (K,) indices into them that the
+    worker triangulated (its image k is frame chosen[k]); result/xyz/rgb: the worker's output.
+    """
+    frames = [capture.frames[i] for i in posed_index]
+    units = "m" if capture.metric else "units"
+    timings = {k: float(v) for k, v in result["timings"].items()}
+    tracks_found = result.get("tracks")
+    if tracks_found is None or len(xyz) == 0:
+        raise PoseError(_unconstrained_message(capture, 0, len(chosen), result))
+    sx, sy = result["scale"]
+    Ks = np.stack([np.diag([sx, sy, 1.0]) @ np.asarray(frames[k].K, dtype=np.float64) for k in chosen])
+    groups = _intrinsic_groups(Ks)
+    cam_from_world = np.stack([_cam_from_world(given[k]) for k in chosen])
+    tracks = Tracks(tracks_found["obs_image"], tracks_found["obs_point"], tracks_found["obs_uv"], xyz)
+
+    start = time.perf_counter()
+    report(progress, "poses: bundle adjustment", 0, 2)
+    held = adjust(Ks, groups, cam_from_world, tracks, AdjustOptions(position_sigma=None, refine_focal=options.refine_focal))
+    seen = _points_seen_with_others(tracks, held.inlier, len(chosen))
+    constrained = seen >= options.min_points
+    if constrained.sum() < 3:
+        raise PoseError(_unconstrained_message(capture, int(constrained.sum()), len(chosen), result))
+    extent = float(np.max(np.linalg.norm(given[:, None, :3, 3] - given[None, :, :3, 3], axis=-1)))
+    chosen_given = given[chosen]
+    best, adjustment, stretches = held, PASS_HELD, _stretch_scales(frames, chosen, chosen_given, held, tracks, constrained)
+    notes: list[str] = []
+    if options.position_sigma_m > 0:
+        report(progress, "poses: bundle adjustment", 1, 2)
+        sigma = options.position_sigma_m if capture.metric else options.position_sigma_m * extent / 100.0
+        start_tracks = Tracks(tracks.camera[held.inlier], tracks.point[held.inlier], tracks.uv[held.inlier], held.points)
+        free = adjust(Ks, groups, held.cam_from_world, start_tracks,
+                      AdjustOptions(position_sigma=sigma, refine_focal=options.refine_focal))
+        free_stretches = _stretch_scales(frames, chosen, chosen_given, free, start_tracks, constrained)
+        worst = max((abs(s.scale - 1.0) for s in free_stretches), default=0.0)
+        gain = 1.0 - free.error_adjusted_px / held.error_adjusted_px if held.error_adjusted_px > 0 else 0.0
+        if worst > options.max_stretch_scale_change:
+            notes.append(f"camera positions kept as given: freeing them within {_length(sigma, units)} would rescale a "
+                         f"stretch by {100 * worst:.1f} % (limit {100 * options.max_stretch_scale_change:g} %)")
+        elif gain < options.min_position_gain:
+            notes.append(f"camera positions kept as given: freeing them within {_length(sigma, units)} lowered the "
+                         f"reprojection error only from {held.error_adjusted_px:.2f} to {free.error_adjusted_px:.2f} px")
         else:
-            adjusted[k] = _cam_to_world(np.asarray(image["cam_from_world"], dtype=np.float64))
-    if len(adjusted) < 3:
-        raise PoseError(
-            f"pose refinement failed: only {len(adjusted)} of {len(names)} frames of {capture.root} could be "
-            f"constrained by the photos ({result['num_points3D']} points triangulated, "
+            free.error_given_px = held.error_given_px  # the given poses' error on the first pass's observations
+            best, adjustment, stretches = free, PASS_PRIORS, free_stretches
+    report(progress, "poses: bundle adjustment", 2, 2)
+    timings["adjust"] = time.perf_counter() - start
+
+    kept_given = ""
+    if not best.error_adjusted_px <= (1.0 - options.min_gain) * best.error_given_px:
+        kept_given = (f"the refined poses explain the photos no better: {best.error_adjusted_px:.2f} px mean reprojection "
+                      f"error against {best.error_given_px:.2f} px with the given ones (a gain under "
+                      f"{100 * options.min_gain:.0f} %)")
+    adjusted_c2w = np.stack([_cam_to_world(p) for p in best.cam_from_world])
+    return _apply(capture, posed_index, given, chosen, adjusted_c2w, constrained, seen, best, adjustment, stretches,
+                  kept_given, notes, units, extent, Ks, groups, xyz, rgb, timings, result, options)
+
+
+def _points_seen_with_others(tracks: Tracks, inlier: np.ndarray, cameras: int) -> np.ndarray:
+    """(C,) per camera: its inlier observations of points that two other cameras also see. A point seen
+    from two views fits any pair of poses (the two rays meet wherever they are), so only longer tracks
+    say whether a camera's pose agrees with the others: a frame given a pose 30 deg off sees many of
+    the first kind and few of the second."""
+    length = np.bincount(tracks.point[inlier], minlength=len(tracks.points))
+    shared = inlier & (length[tracks.point] >= 3)
+    return np.bincount(tracks.camera[shared], minlength=cameras)
+
+
+def _unconstrained_message(capture: Capture, constrained: int, total: int, result: dict) -> str:
+    return (f"pose refinement failed: only {constrained} of {total} frames of {capture.root} could be "
+            f"constrained by the photos ({result.get('num_points3D', 0)} points triangulated, "
             f"{result['database']['verified_pairs']} matched photo pairs). The given poses may not belong to these "
             "photos (another axis convention?), or the photos overlap too little; reconstruct with the given poses, "
-            "or estimate new ones with structure from motion (engine poses)"
-        )
+            "or estimate new ones with structure from motion (engine poses)")
 
-    # Robust fit: all constrained frames, then only those whose change stays within the limits.
-    inliers = sorted(adjusted)
-    similarity = Similarity.identity()
-    changes: dict[int, tuple[float, float]] = {}
-    for _ in range(3):
-        similarity = fit_pose_similarity(np.stack([adjusted[k] for k in inliers]), given[inliers])
-        changes = {k: _change(similarity.apply_pose(adjusted[k]), given[k]) for k in adjusted}
-        within = [k for k, (rot, move) in changes.items() if rot <= options.max_rotation_deg and move <= max_translation]
-        if len(within) < 3 or within == inliers:
-            break
-        inliers = within
+
+def _stretch_scales(frames: list[Frame], chosen: np.ndarray, given_c2w: np.ndarray, adjusted, tracks: Tracks,
+                    constrained: np.ndarray) -> list[StretchScale]:
+    """Scale of the adjusted camera centres against the given ones, per stretch (split where the capture
+    jumps: a step over 10x the median step) and per connected group (frames linked by 20 or more
+    shared inlier points), for parts of 3 or more constrained frames."""
+    centres = given_c2w[:, :3, 3]
+    refined_c2w = np.stack([_cam_to_world(p) for p in adjusted.cam_from_world])
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    cut = np.flatnonzero(steps > 10.0 * max(float(np.median(steps)) if len(steps) else 0.0, 1e-9)) + 1
+    parts = [("stretch", part) for part in np.split(np.arange(len(chosen)), cut)]
+    parts += [("group", part) for part in _covisible_groups(tracks, adjusted.inlier, len(chosen))]
+    scales: list[StretchScale] = []
+    seen: set[tuple[int, ...]] = set()
+    for kind, part in parts:
+        part = part[constrained[part]]
+        key = tuple(part.tolist())
+        if len(part) < 3 or (kind == "group" and key in seen):
+            continue
+        seen.add(key)
+        # Umeyama on the centres alone: its scale is the ratio of the centres' spreads, what a stretch
+        # changing size would change (the orientation-based fit would mix the cameras' turns into it).
+        fit = umeyama(refined_c2w[part, :3, 3], given_c2w[part, :3, 3])
+        scales.append(StretchScale(kind, frames[int(chosen[part[0]])].name, frames[int(chosen[part[-1]])].name,
+                                   len(part), float(fit.scale)))
+    return scales
+
+
+def _covisible_groups(tracks: Tracks, inlier: np.ndarray, cameras: int, min_shared: int = 20) -> list[np.ndarray]:
+    """Connected components (sorted camera indices) of the graph linking cameras that share >= min_shared points."""
+    camera, point = tracks.camera[inlier], tracks.point[inlier]
+    order = np.argsort(point, kind="stable")
+    camera, point = camera[order], point[order]
+    shared = np.zeros((cameras, cameras), dtype=np.int64)
+    starts = np.flatnonzero(np.r_[True, point[1:] != point[:-1]])
+    for a, b in zip(starts, np.r_[starts[1:], len(point)]):
+        members = np.unique(camera[a:b])
+        shared[np.ix_(members, members)] += 1
+    linked = shared >= min_shared
+    label = -np.ones(cameras, dtype=np.int64)
+    groups = []
+    for seed in range(cameras):
+        if label[seed] >= 0:
+            continue
+        stack, label[seed], members = [seed], len(groups), [seed]
+        while stack:
+            c = stack.pop()
+            for other in np.flatnonzero(linked[c] & (label < 0)):
+                label[other] = len(groups)
+                members.append(int(other))
+                stack.append(int(other))
+        groups.append(np.array(sorted(members), dtype=np.int64))
+    return groups
+
+
+def follow_keyframes(given_c2w: np.ndarray, chosen: np.ndarray, adjusted_c2w: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) poses of every frame: the adjusted ones at `chosen`, the others corrected like their
+    neighbouring adjusted frames in capture order (the camera-frame rotation correction interpolated
+    on the sphere, the centre shift linearly), which a tracker's slowly drifting error allows.
+
+    given_c2w: (N, 4, 4); chosen: (K,) increasing indices, containing 0 and N - 1; adjusted_c2w: (K, 4, 4).
+    """
+    count = len(given_c2w)
+    out = given_c2w.copy()
+    correction = np.einsum("kji,kjl->kil", given_c2w[chosen, :3, :3], adjusted_c2w[:, :3, :3])  # R_given^T R_adjusted
+    shift = adjusted_c2w[:, :3, 3] - given_c2w[chosen, :3, 3]
+    out[chosen] = adjusted_c2w
+    position = np.searchsorted(chosen, np.arange(count))
+    for i in np.setdiff1d(np.arange(count), chosen):
+        b = int(position[i])
+        a = b - 1
+        t = (i - chosen[a]) / (chosen[b] - chosen[a])
+        relative = correction[a].T @ correction[b]
+        w = _log_rotation(relative)
+        step = correction[a] @ rodrigues((t * w)[None])[0]
+        out[i, :3, :3] = given_c2w[i, :3, :3] @ step
+        out[i, :3, 3] = given_c2w[i, :3, 3] + (1 - t) * shift[a] + t * shift[b]
+    return out
+
+
+def _log_rotation(rotation: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation -> (3,) axis-angle."""
+    cos = np.clip(0.5 * (np.trace(rotation) - 1.0), -1.0, 1.0)
+    angle = float(np.arccos(cos))
+    if angle < 1e-9:
+        return np.zeros(3)
+    axis = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]])
+    return axis / (2.0 * np.sin(angle)) * angle
+
+
+def _apply(capture: Capture, posed_index: list[int], given: np.ndarray, chosen: np.ndarray, adjusted_c2w: np.ndarray,
+           constrained: np.ndarray, seen: np.ndarray, best, adjustment: str, stretches: list[StretchScale],
+           kept_given: str, notes: list[str], units: str, extent: float, Ks: np.ndarray, groups: np.ndarray,
+           xyz: np.ndarray, rgb: np.ndarray, timings: dict[str, float], result: dict,
+           options: RefineOptions) -> RefineResult:
+    """Every posed frame's refined pose (or its given one), the changes, the acceptance rules."""
+    frames = [capture.frames[i] for i in posed_index]
+    max_translation = options.max_translation_m if capture.metric else options.max_translation_fraction * extent
+    kept = best.constrained_points
+    points, colors = best.points[kept], np.asarray(rgb, dtype=np.uint8).reshape(-1, 3)[kept]
+    common = dict(units=units, points=points, point_colors=colors, mean_reprojection_error=best.error_adjusted_px,
+                  error_given_px=best.error_given_px, scaled_size=_scaled_size(frames[0], options.max_side),
+                  adjusted_frames=len(chosen), adjustment=adjustment, focal_scale=[float(v) for v in best.focal_scale],
+                  stretches=stretches, timings=timings, notes=notes)
+    if kept_given:
+        changes = [FrameChange(f.name, 0.0, 0.0, STATUS_NOT_REFINED, "the given poses were kept") for f in frames]
+        return RefineResult(capture=capture, changes=changes, kept_given=kept_given,
+                            warnings=[f"pose refinement kept the given poses: {kept_given}"], **common)
+
+    reasons: dict[int, str] = {}
+    adjusted_c2w = adjusted_c2w.copy()
+    for k in np.flatnonzero(~constrained):
+        adjusted_c2w[k] = given[chosen[k]]
+        reasons[int(chosen[k])] = (f"it sees {int(seen[k])} triangulated points that two other photos also see, fewer "
+                                   f"than {options.min_points}")
+    everyone = follow_keyframes(given, chosen, adjusted_c2w)
+    focal_of = {}
+    for k, g in zip(chosen, groups):
+        focal_of.setdefault(int(g), np.asarray(frames[int(k)].K, dtype=np.float64))
 
     frame_changes: list[FrameChange] = []
     new_frames = list(capture.frames)
-    for k, frame in enumerate(frames):
-        if k not in adjusted:
-            frame_changes.append(FrameChange(frame.name, 0.0, 0.0, STATUS_NOT_REFINED, reasons[k]))
+    for n, frame in enumerate(frames):
+        if n in reasons:
+            frame_changes.append(FrameChange(frame.name, 0.0, 0.0, STATUS_NOT_REFINED, reasons[n]))
             continue
-        rotation, translation = changes[k]
+        rotation, translation = _change(everyone[n], given[n])
         if rotation > options.max_rotation_deg or translation > max_translation:
             reason = (f"refinement moved it by {rotation:.1f} deg and {_length(translation, units)}, beyond the "
                       f"{options.max_rotation_deg:g} deg / {_length(max_translation, units)} limit")
             frame_changes.append(FrameChange(frame.name, rotation, translation, STATUS_REFUSED, reason))
             continue
         frame_changes.append(FrameChange(frame.name, rotation, translation, STATUS_REFINED))
-        new_frames[posed_index[k]] = replace(frame, pose=similarity.apply_pose(adjusted[k]))
+        new_frames[posed_index[n]] = replace(frame, pose=everyone[n], K=_scaled_focal(frame.K, focal_of, best.focal_scale))
 
     refused = [c for c in frame_changes if c.status == STATUS_REFUSED]
     if len(refused) > options.max_refused_share * len(frames) or len(frames) - len(refused) < 3:
@@ -309,7 +553,6 @@ def _accepted(
             "or too little overlap); reconstruct with the given poses, or estimate new ones with structure from "
             "motion (engine poses)"
         )
-
     warnings: list[str] = []
     if refused:
         warnings.append(f"{len(refused)} frame(s) would have moved too far and keep their given pose: "
@@ -318,21 +561,18 @@ def _accepted(
     if not_refined:
         warnings.append(f"{len(not_refined)} frame(s) could not be refined (too few matched points) and keep their "
                         f"given pose: {name_list(not_refined)}")
-    points = similarity.apply_points(xyz) if len(xyz) else np.zeros((0, 3))
-    refined_capture = capture.with_frames(new_frames)
-    return RefineResult(
-        capture=refined_capture,
-        changes=frame_changes,
-        units=units,
-        points=points,
-        point_colors=np.asarray(rgb, dtype=np.uint8).reshape(-1, 3),
-        mean_reprojection_error=float(result["mean_reprojection_error"] or 0.0),
-        scaled_size=_scaled_size(frames[0], options.max_side),
-        rounds=int(result["rounds"]),
-        similarity=similarity,
-        timings={k: float(v) for k, v in result["timings"].items()},
-        warnings=warnings,
-    )
+    return RefineResult(capture=capture.with_frames(new_frames), changes=frame_changes, warnings=warnings, **common)
+
+
+def _scaled_focal(K: np.ndarray, focal_of: dict[int, np.ndarray], focal_scale: np.ndarray) -> np.ndarray:
+    """K with its focal lengths scaled by its intrinsics group's focal scale (unchanged when no group has its K)."""
+    for group, reference in focal_of.items():
+        if np.allclose(K, reference, rtol=1e-6, atol=1e-6):
+            scaled = np.array(K, dtype=np.float64)
+            scaled[0, 0] *= focal_scale[group]
+            scaled[1, 1] *= focal_scale[group]
+            return scaled
+    return K
 
 
 def _change(refined_c2w: np.ndarray, given_c2w: np.ndarray) -> tuple[float, float]:

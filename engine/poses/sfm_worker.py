@@ -28,17 +28,17 @@ Result (work_dir/result.json and work_dir/points.npz): see `_write_result`. Its 
 whether low-contrast photos had their features extracted again ("low_contrast": {"before", "after"}
 median features per photo, or null) and how many photos each mapping attempt posed ("mapping_attempts").
 
-A job with `"kind": "refine"` (written by `refine.py`) refines given poses instead of estimating
-new ones: SIFT features, matches between the listed image pairs, triangulation with the given
-poses and intrinsics (fixed), bundle adjustment, repeated (see `run_refine`). Its extra fields:
-  K_per_image        [[3x3], ...] in pixels of the source images, one per image (PINHOLE, held fixed)
+A job with `"kind": "refine"` (written by `refine.py` and the pose check in `quality.py`) works
+from given poses instead of estimating new ones: SIFT features, matches between the listed image
+pairs, one triangulation with the given poses and intrinsics (fixed); the parent adjusts (see
+`run_refine`). Its extra fields:
+  K_per_image        [[3x3], ...] in pixels of the source images, one per image (PINHOLE)
   cam_from_world     [[3x4], ...] the given world-to-camera poses, OpenCV axes, one per image
   pairs              [[i, j], ...] image indices to match
-  rounds             most triangulate + bundle adjustment rounds
-  loose_angle_deg    the first triangulation accepts rays this far off (the given poses' error)
-Its result: work_dir/result.json {"images": [{"name", "cam_from_world" 3x4, "num_points3D"}],
-"mean_reprojection_error", "num_points3D", "rounds", "round_changes", "database", "timings"} and
-work_dir/points.npz as for SfM.
+  loose_angle_deg    the triangulation accepts rays this far off (the given poses' error)
+Its result: work_dir/result.json {"images": [{"name", "num_points3D"}], "mean_reprojection_error",
+"num_points3D", "scale": [sx, sy] (downscaled / source pixels), "database", "timings"} and
+work_dir/points.npz as for SfM plus the tracks (obs_image, obs_point, obs_uv; see `_write_tracks`).
 """
 
 from __future__ import annotations
@@ -318,14 +318,12 @@ def _pinhole_params(K: list, sx: float, sy: float) -> list[float]:
 
 
 def run_refine(job: dict) -> None:
-    """Refine given poses: triangulate with them, bundle-adjust, retriangulate, until they settle.
+    """Triangulate matches with the given poses and intrinsics (held fixed) and write the tracks.
 
-    The first triangulation accepts rays `loose_angle_deg` off (the given poses may be off by that
-    much); later ones use COLMAP's defaults on the adjusted poses, so wrong early tracks do not
-    survive. Bundle adjustment holds the intrinsics fixed, uses a Cauchy loss (1 px) against the
-    remaining bad matches and fixes the gauge by two cameras (without it the free 7 degrees of
-    freedom make the normal equations singular); the caller brings the result back to the given
-    world with a similarity fit, so the gauge choice does not matter.
+    The triangulation accepts rays `loose_angle_deg` off (the given poses may be off by that much);
+    the parent's bundle adjustment (`adjust.py`, which keeps the given trajectory's gauge) then fits
+    rotations, focal lengths and points to these tracks and drops the wrong ones. The pose check runs
+    this same job and reads only the mean reprojection error of the given poses.
     """
     import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
@@ -365,6 +363,7 @@ def run_refine(job: dict) -> None:
     stats = database_stats(db_path)
 
     start = time.perf_counter()
+    say("stage", "triangulate", 1)
     index_of = {name: i for i, name in enumerate(names)}
     reconstruction = pycolmap.Reconstruction()
     with pycolmap.Database.open(str(db_path)) as db:
@@ -381,103 +380,58 @@ def run_refine(job: dict) -> None:
             pose = np.asarray(job["cam_from_world"][index_of[db_image.name]], dtype=np.float64)
             reconstruction.add_image_with_trivial_frame(
                 image, pycolmap.Rigid3d(pycolmap.Rotation3d(pose[:, :3]), pose[:, 3]))
-
     focal = float(np.median([0.5 * (p[0] + p[1]) for p in params]))
-    rounds = int(job["rounds"])
-    round_changes: list[float] = []
-    say("stage", "adjust", rounds)
-    done_rounds = 0
-    for round_index in range(rounds):
-        loose = round_index == 0
-        reconstruction = _triangulate(reconstruction, db_path, image_dir, work / f"triangulated-{round_index}",
-                                      float(job["loose_angle_deg"]) if loose else None, focal)
-        before = _rotations(reconstruction)
-        _bundle_adjust(reconstruction)
-        change = _largest_change_deg(before, _rotations(reconstruction))
-        round_changes.append(change)
-        done_rounds = round_index + 1
-        say("progress", "adjust", done_rounds, rounds)
-        # Settled: the last adjustment turned no camera by more than a hundredth of a degree.
-        if not loose and change < 0.01:
-            break
-    # Points that agree with the final poses (the caller writes them out with the refined capture).
-    reconstruction = _triangulate(reconstruction, db_path, image_dir, work / "triangulated-final", None, focal)
-    timings["adjust"] = time.perf_counter() - start
-    _write_refined(work, reconstruction, stats, timings, done_rounds, round_changes)
+    reconstruction = _triangulate(reconstruction, db_path, image_dir, work / "triangulated",
+                                  float(job["loose_angle_deg"]), focal)
+    timings["triangulate"] = time.perf_counter() - start
+    say("progress", "triangulate", 1, 1)
+    _write_tracks(work, reconstruction, index_of, stats, timings, sx, sy)
 
 
-def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loose_angle_deg, focal: float):
+def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loose_angle_deg: float, focal: float):
     import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     options = pycolmap.IncrementalPipelineOptions()
-    if loose_angle_deg is not None:
-        triangulation = options.triangulation
-        triangulation.create_max_angle_error = max(2.0, loose_angle_deg)
-        triangulation.continue_max_angle_error = max(2.0, loose_angle_deg)
-        pixels = max(4.0, focal * float(np.tan(np.radians(loose_angle_deg))))
-        triangulation.merge_max_reproj_error = pixels
-        triangulation.complete_max_reproj_error = pixels
+    triangulation = options.triangulation
+    triangulation.create_max_angle_error = max(2.0, loose_angle_deg)
+    triangulation.continue_max_angle_error = max(2.0, loose_angle_deg)
+    pixels = max(4.0, focal * float(np.tan(np.radians(loose_angle_deg))))
+    triangulation.merge_max_reproj_error = pixels
+    triangulation.complete_max_reproj_error = pixels
     out.mkdir(parents=True, exist_ok=True)
     return pycolmap.triangulate_points(reconstruction, db_path, image_dir, out, clear_points=True, options=options)
 
 
-def _bundle_adjust(reconstruction) -> None:
-    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
-
-    options = pycolmap.BundleAdjustmentOptions()
-    options.refine_focal_length = False
-    options.refine_principal_point = False
-    options.refine_extra_params = False
-    options.print_summary = False
-    options.ceres.loss_function_type = pycolmap.LossFunctionType.CAUCHY
-    options.ceres.loss_function_scale = 1.0
-    options.ceres.solver_options.max_num_iterations = 300
-    config = pycolmap.BundleAdjustmentConfig()
-    for image_id in reconstruction.reg_image_ids():
-        if reconstruction.images[image_id].num_points3D > 0:
-            config.add_image(image_id)
-    config.fix_gauge(pycolmap.BundleAdjustmentGauge.TWO_CAMS_FROM_WORLD)
-    pycolmap.create_default_bundle_adjuster(options, config, reconstruction).solve()
-
-
-def _rotations(reconstruction) -> dict[str, np.ndarray]:
-    """{name: (3, 3) world-to-camera rotation} of the posed images, to measure how much a round turned them."""
-    return {reconstruction.images[i].name: np.asarray(reconstruction.images[i].cam_from_world().rotation.matrix())
-            for i in reconstruction.reg_image_ids()}
-
-
-def _largest_change_deg(before: dict[str, np.ndarray], after: dict[str, np.ndarray]) -> float:
-    """Largest rotation (degrees) between two rounds' cameras, relative to the first camera's change.
-
-    Relative, because the gauge (the two fixed cameras) need not stay put between rounds.
-    """
-    names = sorted(before)
-    ref = after[names[0]].T @ before[names[0]]
-    worst = 0.0
-    for name in names:
-        delta = after[name] @ ref @ before[name].T
-        cos = np.clip(0.5 * (np.trace(delta) - 1.0), -1.0, 1.0)
-        worst = max(worst, float(np.degrees(np.arccos(cos))))
-    return worst
-
-
-def _write_refined(work: Path, reconstruction, stats: dict, timings: dict, rounds: int, round_changes: list[float]) -> None:
+def _write_tracks(work: Path, reconstruction, index_of: dict[str, int], stats: dict, timings: dict,
+                  sx: float, sy: float) -> None:
+    """points.npz: xyz, rgb, error per point, and the observations (obs_image: job image index,
+    obs_point: row in xyz, obs_uv: COLMAP's keypoint position in the downscaled photo, the frame of
+    the scaled K COLMAP triangulated with); result.json: counts, the given poses' mean error, timings."""
     images = []
     for image_id in sorted(reconstruction.reg_image_ids()):
         image = reconstruction.images[image_id]
-        images.append({"name": image.name, "cam_from_world": np.asarray(image.cam_from_world().matrix()).tolist(),
-                       "num_points3D": int(image.num_points3D)})
-    points = list(reconstruction.points3D.values())
-    xyz = np.array([p.xyz for p in points], dtype=np.float64).reshape(-1, 3)
-    rgb = np.array([p.color for p in points], dtype=np.uint8).reshape(-1, 3)
-    error = np.array([p.error for p in points], dtype=np.float64)
-    np.savez(work / "points.npz", xyz=xyz, rgb=rgb, error=error)
+        images.append({"name": image.name, "num_points3D": int(image.num_points3D)})
+    point_ids = sorted(reconstruction.points3D)
+    row_of = {pid: row for row, pid in enumerate(point_ids)}
+    xyz = np.array([reconstruction.points3D[p].xyz for p in point_ids], dtype=np.float64).reshape(-1, 3)
+    rgb = np.array([reconstruction.points3D[p].color for p in point_ids], dtype=np.uint8).reshape(-1, 3)
+    error = np.array([reconstruction.points3D[p].error for p in point_ids], dtype=np.float64)
+    obs_image, obs_point, obs_uv = [], [], []
+    for pid in point_ids:
+        for element in reconstruction.points3D[pid].track.elements:
+            image = reconstruction.images[element.image_id]
+            obs_image.append(index_of[image.name])
+            obs_point.append(row_of[pid])
+            obs_uv.append(image.points2D[element.point2D_idx].xy)
+    np.savez(work / "points.npz", xyz=xyz, rgb=rgb, error=error,
+             obs_image=np.asarray(obs_image, dtype=np.int64),
+             obs_point=np.asarray(obs_point, dtype=np.int64),
+             obs_uv=np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2))
     result = {
         "images": images,
-        "mean_reprojection_error": float(reconstruction.compute_mean_reprojection_error()) if points else None,
-        "num_points3D": len(points),
-        "rounds": rounds,
-        "round_changes": round_changes,
+        "mean_reprojection_error": float(reconstruction.compute_mean_reprojection_error()) if point_ids else None,
+        "num_points3D": len(point_ids),
+        "scale": [sx, sy],
         "database": stats,
         "timings": timings,
     }

@@ -76,8 +76,8 @@ def _refine_result(blender, capture, moved: dict[int, np.ndarray], refused: list
             changes.append(refine.FrameChange(frame.name, 0.4 if index in moved else 0.0, shift, refine.STATUS_REFINED))
     return refine.RefineResult(
         capture=capture.with_frames(frames), changes=changes, units="m", points=np.zeros((0, 3)),
-        point_colors=np.zeros((0, 3), np.uint8), mean_reprojection_error=0.4, scaled_size=(320, 240), rounds=3,
-        similarity=_poses_module(blender).Similarity.identity(),
+        point_colors=np.zeros((0, 3), np.uint8), mean_reprojection_error=0.4, error_given_px=1.6, scaled_size=(320, 240),
+        adjusted_frames=len(frames), adjustment=refine.PASS_HELD, focal_scale=[1.0],
     )
 
 

@@ -498,8 +498,8 @@ def _refined_stand_in(blender, capture, shift: np.ndarray):
         changes.append(refine.FrameChange(frame.name, 0.3, float(np.linalg.norm(shift)), refine.STATUS_REFINED))
     return refine.RefineResult(
         capture=capture.with_frames(frames), changes=changes, units="m", points=np.zeros((0, 3)),
-        point_colors=np.zeros((0, 3), np.uint8), mean_reprojection_error=0.4, scaled_size=(96, 72), rounds=2,
-        similarity=poses_pkg.Similarity.identity())
+        point_colors=np.zeros((0, 3), np.uint8), mean_reprojection_error=0.4, error_given_px=1.6, scaled_size=(96, 72),
+        adjusted_frames=len(frames), adjustment=refine.PASS_HELD, focal_scale=[1.0])
 
 
 @pytest.mark.parametrize("keep", [False, True])

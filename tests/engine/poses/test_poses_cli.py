@@ -39,7 +39,7 @@ def perturbed_capture(tmp_path_factory) -> tuple[Path, list[np.ndarray], list[np
     names = sorted(p.name for p in (SAMPLE / "images").glob("*.jpg"))[:COUNT]
     K = np.loadtxt(SAMPLE / "truth" / "intrinsic" / "intrinsic_color.txt")[:3, :3]
     truth = [np.loadtxt(SAMPLE / "truth" / "pose" / f"{Path(n).stem}.txt").reshape(4, 4) for n in names]
-    given = perturbed(truth, np.random.default_rng(7))
+    given = perturbed(truth, np.random.default_rng(7), max_shift=0.003)  # a tracker's: turned, centres within 3 mm
     frames = [Frame(SAMPLE / "images" / n, 320, 240, K.copy(), g) for n, g in zip(names, given)]
     folder = tmp_path_factory.mktemp("perturbed") / "scan"
     write_scannet(Capture(SAMPLE / "images", "scannet", frames, metric=True), folder)
@@ -62,7 +62,7 @@ def _poses(capture: Capture) -> np.ndarray:
     return np.stack([f.pose for f in capture.frames])
 
 
-def test_refine_from_the_cli_brings_perturbed_poses_back_within_a_fifth_of_a_degree(perturbed_capture, cli_refinement):
+def test_refine_from_the_cli_brings_perturbed_poses_back_within_a_quarter_of_a_degree(perturbed_capture, cli_refinement):
     _, truth, given = perturbed_capture
     out, stdout, status = cli_refinement
     assert status == 0
@@ -75,8 +75,9 @@ def test_refine_from_the_cli_brings_perturbed_poses_back_within_a_fifth_of_a_deg
     refined = _poses(written)
     fit = fit_pose_similarity(refined, true)
     errors = [rotation_angle_deg(t[:3, :3].T @ fit.apply_pose(r)[:3, :3]) for r, t in zip(refined, true)]
-    assert max(errors) < 0.2, errors
-    assert fit.scale == pytest.approx(1.0, abs=0.02)  # the metric scale of the given poses is kept
+    # The centres stay where they were given (up to 3 mm off at 1-3 m: up to 0.1 deg of what is left).
+    assert max(errors) < 0.25 and np.median(errors) < 0.12, errors
+    assert fit.scale == pytest.approx(1.0, abs=0.005)  # the metric scale of the given poses is kept
 
     # The COLMAP text model beside it holds the same cameras and the triangulated points.
     colmap = load_capture(out / "colmap", images_dir=out / "color", metric=True)
@@ -93,6 +94,7 @@ def test_refine_report_gives_the_change_per_frame(perturbed_capture, cli_refinem
     before = [rotation_angle_deg(t[:3, :3].T @ g[:3, :3]) for t, g in zip(truth, given)]
     assert median == pytest.approx(np.median(before), abs=0.5)  # the perturbation undone
     assert "cm max" in stdout and "wrote 16 posed photos" in stdout
+    assert "camera positions held" in stdout and "scale 1.000" in stdout and "adjust" in stdout.split("time:")[1]
     assert "structure from motion replaces them" not in stdout
 
 
@@ -109,7 +111,6 @@ def test_refine_needs_a_capture_with_poses(tmp_path, capsys):
 def test_reconstruct_refine_poses_uses_and_reports_the_refined_poses(perturbed_capture, tmp_path, monkeypatch, capsys):
     """The refinement runs between loading and reconstructing; its report goes to stderr and the sidecar."""
     import engine.poses
-    from engine.poses.align import Similarity
     from engine.poses.refine import FrameChange, RefineResult
     from engine.recon import driver
 
@@ -122,8 +123,9 @@ def test_reconstruct_refine_poses_uses_and_reports_the_refined_poses(perturbed_c
         changes = [FrameChange(f.name, 1.0 + 0.1 * k, 0.02, "refined") for k, f in enumerate(capture.frames[:-1])]
         changes.append(FrameChange(capture.frames[-1].name, 12.0, 0.5, "refused", "refinement moved it by 12.0 deg"))
         return RefineResult(capture.with_frames(frames), changes, "m", np.zeros((0, 3)), np.zeros((0, 3), np.uint8),
-                            0.4, (320, 240), 3, Similarity.identity(), {"adjust": 1.0},
-                            ["1 frame(s) would have moved too far and keep their given pose"])
+                            mean_reprojection_error=0.4, error_given_px=1.6, scaled_size=(320, 240), adjusted_frames=16,
+                            adjustment="camera positions held", focal_scale=[1.0], timings={"adjust": 1.0},
+                            warnings=["1 frame(s) would have moved too far and keep their given pose"])
 
     seen = []
 
@@ -159,13 +161,14 @@ def test_reconstruct_refine_poses_uses_and_reports_the_refined_poses(perturbed_c
 def test_reconstruct_sidecar_records_the_refinement(tmp_path, monkeypatch):
     """The sidecar's "poses" entry: source, scale and the refinement's numbers and refused frames."""
     from engine.poses.prepare import PreparedCapture
-    from engine.poses.refine import FrameChange, RefineResult
-    from engine.poses.align import Similarity
+    from engine.poses.refine import FrameChange, RefineResult, StretchScale
 
     changes = [FrameChange("a.jpg", 0.5, 0.01, "refined"), FrameChange("b.jpg", 1.5, 0.03, "refined"),
                FrameChange("c.jpg", 20.0, 2.0, "refused", "refinement moved it by 20.0 deg")]
-    result = RefineResult(None, changes, "m", np.zeros((5, 3)), np.zeros((5, 3), np.uint8), 0.4, (320, 240), 3,
-                          Similarity.identity(), {"adjust": 2.0})
+    result = RefineResult(None, changes, "m", np.zeros((5, 3)), np.zeros((5, 3), np.uint8), mean_reprojection_error=0.4,
+                          error_given_px=1.5, scaled_size=(320, 240), adjusted_frames=3, adjustment="camera positions held",
+                          focal_scale=[1.0], stretches=[StretchScale("stretch", "a.jpg", "c.jpg", 3, 1.0)],
+                          timings={"adjust": 2.0})
     summary = PreparedCapture(None, "metric capture", "metric capture: poses kept as they are", refinement=result).summary()
     json.dumps(summary)  # JSON-ready
     assert summary["source"] == "given" and summary["refined"] and summary["scale_source"] == "metric capture"
@@ -174,3 +177,5 @@ def test_reconstruct_sidecar_records_the_refinement(tmp_path, monkeypatch):
     assert refinement["rotation_deg_median"] == pytest.approx(1.0) and refinement["rotation_deg_max"] == pytest.approx(1.5)
     assert refinement["translation_max"] == pytest.approx(0.03) and refinement["units"] == "m"
     assert refinement["refused"] == {"c.jpg": "refinement moved it by 20.0 deg"} and refinement["points"] == 5
+    assert refinement["given_reprojection_error_px"] == 1.5 and refinement["stretch_scales"][0]["scale"] == 1.0
+    assert refinement["timings_s"] == {"adjust": 2.0} and refinement["kept_given"] == ""
