@@ -163,7 +163,7 @@ def export_result(obj: bpy.types.Object, path: str | Path, view_layer: bpy.types
             outcome = bpy.ops.wm.ply_export(
                 filepath=str(path), export_selected_objects=True, forward_axis="Y", up_axis="Z", global_scale=1.0,
                 apply_modifiers=True, export_normals=True, export_uv=False, export_colors="SRGB",
-                export_attributes=False, export_triangulated_mesh=True, ascii_format=False,
+                export_attributes=True, export_triangulated_mesh=True, ascii_format=False,
             )
         elif kind == "OBJ":
             with _texture_file_beside(obj, path) if textured else nullcontext():

@@ -207,3 +207,19 @@ def test_faces_the_finishing_added_are_a_selectable_face_attribute(blender, empt
     attribute.data.foreach_get("value", values)
     centres = np.array([p.center[:] for p in obj.data.polygons])
     np.testing.assert_array_equal(values, centres[:, 0] < 1.0)
+
+
+def test_a_ply_export_keeps_the_added_mark_for_the_texture_bake(blender, empty_scene, tmp_path) -> None:
+    """`engine texture` reads the exported PLY: the ADDED vertex attribute must travel with it, so the
+    bake can fill the added faces from their plane (the batch exports, then bakes)."""
+    mesh = sheet(blender, evidence=False)
+    added = (mesh.vertices[:, 0] <= 1.0).astype(np.float32)
+    mesh.attributes = {blender.engine.observation.ADDED: added}
+    obj = insert(blender, empty_scene, mesh)
+    path = blender.vortx_blender.export.export_result(obj, tmp_path / "sheet.ply")
+    written = blender.engine.mesh_io.read_ply(path)
+    name = blender.engine.observation.ADDED
+    assert name in written.attributes
+    by_position = {tuple(np.round(v, 4)): a for v, a in zip(written.vertices, written.attributes[name])}
+    expected = {tuple(np.round(v, 4)): a for v, a in zip(mesh.vertices, added)}
+    assert by_position == expected
