@@ -117,6 +117,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="instead of the benchmark: CPU seconds per keyframe of each PatchMatch stage (one thread) "
                              "and the depth maps against the room's true depth, on a few consecutive keyframes of ROOM "
                              "(a room folder with true depth, its poses as given)")
+    parser.add_argument("--refine-profile", type=Path, default=None, metavar="CAPTURE",
+                        help="instead of the benchmark: the pose refinement of CAPTURE's given poses (a posed capture, e.g. "
+                             "the SUN3D room), seconds per stage, frames adjusted, errors and stretch scales")
     parser.add_argument("--profile-sizes", type=int, nargs="+", default=[160, 320], help="stereo long sides profiled")
     parser.add_argument("--profile-references", type=int, default=5, help="consecutive keyframes profiled")
     parser.add_argument("--profile-first", type=int, default=0, help="the first keyframe profiled")
@@ -474,7 +477,44 @@ def profile_markdown(profiles: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def refine_profile(capture_path: Path) -> dict[str, Any]:
+    """The default pose refinement of `capture_path`'s given poses, timed: wall and CPU seconds per stage."""
+    from .poses.refine import refine_poses
+
+    capture = load_capture(capture_path)
+    started, cpu = time.perf_counter(), time.process_time()
+    result = refine_poses(capture)
+    return {"capture": str(capture_path), "frames": len(result.changes), "adjusted_frames": result.adjusted_frames,
+            "points": int(len(result.points)), "error_given_px": result.error_given_px,
+            "error_refined_px": result.mean_reprojection_error, "kept_given": result.kept_given,
+            "rotation_deg_median": result.rotation_deg_median,
+            "stretch_scales": [s.scale for s in result.stretches if s.kind == "stretch"],
+            "timings_s": dict(result.timings), "wall_s": time.perf_counter() - started,
+            # The parent's CPU only: SIFT, matching and triangulation run in the worker process.
+            "parent_cpu_s": time.process_time() - cpu}
+
+
+def refine_markdown(profile: dict[str, Any]) -> str:
+    stages = ("prepare", "extract", "match", "triangulate", "adjust")
+    t = profile["timings_s"]
+    return "\n".join([
+        "| capture | frames (adjusted) | points | error given -> refined px | stretch scales | "
+        + " | ".join(f"{s} s" for s in stages) + " | total wall s |",
+        "|---|---|---|---|---|" + "---|" * (len(stages) + 1),
+        f"| {Path(profile['capture']).name} | {profile['frames']} ({profile['adjusted_frames']}) | {profile['points']} "
+        f"| {profile['error_given_px']:.2f} -> {profile['error_refined_px']:.2f} "
+        f"| {' / '.join(f'{v:.3f}' for v in profile['stretch_scales'])} | "
+        + " | ".join(f"{t.get(s, 0.0):.1f}" for s in stages) + f" | {profile['wall_s']:.1f} |",
+    ])
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.refine_profile is not None:
+        profile = refine_profile(args.refine_profile)
+        print(refine_markdown(profile))
+        if args.out is not None:
+            args.out.write_text(json.dumps(profile, indent=1))
+        return 0
     if args.patchmatch_profile is not None:
         overrides = dict((k, _option_value(v)) for k, v in (item.split("=", 1) for item in args.profile_set))
         profiles = []

@@ -129,3 +129,14 @@ def test_report_table_shows_each_matcher_with_its_stages_and_seconds_per_keyfram
     table = markdown(report)
     assert "| N=60, 2 m room | fast | 64 | 200x150 | - | - | - | 30.0 | 0.47 |" in table
     assert "| N=60, 2 m room | patchmatch | 64 | 320x240 | 150.0 | 90.0 | 4.0 | 256.0 | 4.00 |" in table
+
+
+def test_refine_profile_table_gives_each_stage_and_the_stretch_scales():
+    from engine.bench import refine_markdown
+
+    profile = {"capture": "/rooms/sun3d", "frames": 99, "adjusted_frames": 58, "points": 2275, "error_given_px": 1.82,
+               "error_refined_px": 0.77, "stretch_scales": [1.0, 0.9992], "wall_s": 40.2,
+               "timings_s": {"prepare": 0.9, "extract": 17.0, "match": 8.2, "triangulate": 1.3, "adjust": 6.3}}
+    table = refine_markdown(profile).splitlines()
+    assert table[0].count("|") == table[1].count("|") == table[2].count("|")
+    assert "| sun3d | 99 (58) | 2275 | 1.82 -> 0.77 | 1.000 / 0.999 | 0.9 | 17.0 | 8.2 | 1.3 | 6.3 | 40.2 |" == table[2]
