@@ -194,6 +194,19 @@ def test_settings_panels_show_their_properties(blender, empty_scene, panel: str,
     assert props == expected
 
 
+def test_result_limits_say_off_while_they_do_nothing(blender, empty_scene) -> None:
+    """A piece or face limit at 0 does nothing: the panel says "Off" beside it; a set limit shows no "Off"."""
+    import bpy
+
+    settings = empty_scene.vortx
+    settings.min_piece_faces, settings.min_piece_fraction, settings.target_faces = 0, 0.0, 0
+    labels = [c[1].get("text") for c in _draw("VORTX_PT_result", bpy.context) if c[0] == "label"]
+    assert labels.count("Off") == 3
+    settings.min_piece_faces, settings.target_faces = 50, 200_000
+    labels = [c[1].get("text") for c in _draw("VORTX_PT_result", bpy.context) if c[0] == "label"]
+    assert labels.count("Off") == 1  # the piece share only
+
+
 def test_weights_file_shown_only_when_chosen(blender, empty_scene) -> None:
     import bpy
 
