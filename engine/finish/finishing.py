@@ -4,16 +4,20 @@ Naive clean-up trades geometry away (docs/experiments.md, "A finished room"): dr
 throws real surface out with the dust, smoothing pulls walls off their planes. This uses the evidence
 instead: the structural planes (`planes.py`), the depth maps' votes (`free_space.py`) and the cameras.
 
-- clean: pieces are dropped where the views do not support them (most of their vertices seen by
-  fewer than `min_views` depth maps, or seen through more than seen: a floater in free space), surface
-  behind a structural plane where the plane stands (nothing can be seen through a wall) is dropped, and
-  vertices within `tolerance` of a structural plane are moved onto it. Nothing is added.
-- room: as clean, but each structural plane becomes one clean grid surface (cells of the voxel size)
-  over the cells the surface covered, plus the cells no view saw through inside the plane's extent
-  (bounded by the floor, ceiling and neighbouring walls, by what the views framed, and by free space:
-  a wall does not close an open door or a window seen through). Its faces replace the mesh's own near
-  the plane; furniture and anything off the planes stays as it was. Added faces are marked: the
-  vertex attribute ADDED is 1 on them (their vertices are their own, not shared with seen faces).
+- clean: faces most views see through are carved (crumpled stereo in front of what the other views
+  saw), surface behind a structural plane where the plane stands is dropped (nothing in the room sees
+  through a wall except through its openings), pieces are dropped where the views do not support them
+  (`_pieces_to_drop`: few vertices seen, floating in free space, or small and seen by too few views of
+  a room whose floor and walls were found), and vertices within `tolerance` of a plane that face its way
+  are moved onto it. Nothing is added.
+- room: as clean, but each structural plane becomes one grid surface (cells of the voxel size) over
+  the cells the surface covered, plus the cells no view saw through inside the plane's extent (bounded
+  by the floor, ceiling and neighbouring walls, by what the photos framed, and by free space: a wall
+  does not close an open door or a window seen through; an added stretch touches seen surface). Its
+  faces replace the mesh's own near the plane, and what is left of the mesh within two tolerances of a
+  plane where it stands (crumpled wall the tolerance did not reach) goes with them; furniture and
+  anything off the planes stays as it was. Added faces are marked: the vertex attribute ADDED is 1 on
+  them (their vertices are their own, not shared with seen faces).
 
 Input and output are `engine.mesh_io.Mesh` in the engine's world (metres, Z up); colours and evidence
 are attached after finishing by the reconstruction, so only positions, faces and ADDED come out.
@@ -50,10 +54,10 @@ EXTENT_PERCENTILE = 0.5  # % of a plane's surface cut at each end of its extent 
 @dataclass
 class FinishOptions:
     """tolerance: m from a structural plane within which surface is the plane (None: 2 voxels, at
-    least 6 cm). min_views: depth maps that must see a piece for it to stay; small_piece_views: those that
-    must see a small piece (under SMALL_PIECE_AREA) of a room whose structure was found (None: scaled
-    with the number of depth maps, VIEWS_PER_MIN_VIEW and VIEWS_PER_SMALL_PIECE_VIEW of them per view). cell: the plane grid's cell
-    in m (None: the voxel size)."""
+    least 6 cm). min_views: depth maps that must see a piece for it to stay; small_piece_views: those
+    that must see a small piece (under SMALL_PIECE_AREA) of a room whose structure was found (None:
+    scaled with the number of depth maps, one per VIEWS_PER_MIN_VIEW / VIEWS_PER_SMALL_PIECE_VIEW).
+    cell: the plane grid's cell in m (None: the voxel size). min_plane_area: m^2 of surface a plane needs."""
 
     tolerance: Optional[float] = None
     min_views: Optional[int] = None
@@ -72,8 +76,9 @@ class FinishResult:
 @dataclass
 class PlaneGrid:
     """One plane's cells: origin (2,) in-plane coordinates of cell (0, 0)'s corner, cell size, and the
-    masks (A, B) bool of cells the surface covered (`observed`), the views saw through (`free`) and
-    the finished surface's cells (`keep` = observed, or added where nothing contradicts it)."""
+    masks (A, B) bool of cells the surface covered (`observed`), free space by the votes (`free`,
+    reported), where seeing through outvotes surface (`open`: doors, windows) and the finished surface's
+    cells (`keep` = observed, or added where nothing contradicts it)."""
 
     plane: StructuralPlane
     origin: np.ndarray
