@@ -20,7 +20,10 @@ point reports it in the same words.
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Optional
 
 import numpy as np
@@ -176,13 +179,23 @@ def prepare_capture(
         return prepared
     refinement = None
     points, colors = capture.points, capture.point_colors  # the capture's own (a COLMAP model's points3D)
-    check, check_note = (_check_given_poses(capture, progress, cancel) if check_poses and not refine else (None, None))
-    refined_because_off = bool(refine_when_off and check is not None and check.poses_off)
-    if refine or refined_because_off:
-        refinement = pose_package.refine_poses(capture, refine_options, progress=progress, cancel=cancel)
-        capture = refinement.capture
-        if len(refinement.points):
-            points, colors = refinement.points, refinement.point_colors
+    # When poses found off will be refined, the check keeps its features for the refinement.
+    check_dir = Path(tempfile.mkdtemp(prefix="vortx-pose-check-")) if check_poses and refine_when_off and not refine else None
+    try:
+        check, check_note = (_check_given_poses(capture, progress, cancel, check_dir) if check_poses and not refine
+                             else (None, None))
+        refined_because_off = bool(refine_when_off and check is not None and check.poses_off)
+        if refine or refined_because_off:
+            options = refine_options or RefineOptions()
+            if check is not None and check.features is not None and options.features_from is None:
+                options = replace(options, features_from=check.features)
+            refinement = pose_package.refine_poses(capture, options, progress=progress, cancel=cancel)
+            capture = refinement.capture
+            if len(refinement.points):
+                points, colors = refinement.points, refinement.point_colors
+    finally:
+        if check_dir is not None:
+            shutil.rmtree(check_dir, ignore_errors=True)
     # The sparse points (the capture's own, or the refinement's triangulated ones) let the alignment
     # find the floor of a non-metric capture; they move with the poses.
     alignment = align_gravity_and_scale(capture, camera_height=camera_height, known_distance=known_distance,
@@ -264,16 +277,17 @@ KEEP_POSES_HELP = ("use the capture's own poses as given, even when the check ag
                    "(by default such poses are refined before stereo, and the report says what moved)")
 
 
-def _check_given_poses(capture: Capture, progress: Optional[ProgressCallback], cancel: Optional[CancelToken]
-                       ) -> tuple[Optional["PoseCheck"], Optional[str]]:
+def _check_given_poses(capture: Capture, progress: Optional[ProgressCallback], cancel: Optional[CancelToken],
+                       work_dir: Optional[Path] = None) -> tuple[Optional["PoseCheck"], Optional[str]]:
     """Check the given poses of `capture` against its photos: the check, or None and a note saying why
-    they could not be checked (too few posed photos, COLMAP could not run: the poses are used as given)."""
+    they could not be checked (too few posed photos, COLMAP could not run: the poses are used as given).
+    With `work_dir` the check's files stay there (its features serve a refinement)."""
     checkable = [f for f in capture.frames if f.pose is not None and f.K is not None]
     if len(checkable) < MIN_CHECK_FRAMES:
         return None, (f"the given poses were not checked against the photos: {len(checkable)} posed photos "
                       f"with intrinsics, the check needs {MIN_CHECK_FRAMES}")
     try:
-        return check_given_poses(capture, progress=progress, cancel=cancel), None
+        return check_given_poses(capture, progress=progress, cancel=cancel, work_dir=work_dir), None
     except PoseError as error:
         return None, f"the given poses could not be checked against the photos: {error}"
 

@@ -17,7 +17,7 @@ import numpy as np
 from ..capture.naming import name_list
 from ..errors import PoseError
 from .process import run_pose_job
-from .refine import _cam_from_world, neighbour_pairs
+from .refine import SharedFeatures, _cam_from_world, neighbour_pairs, photo_name
 
 if TYPE_CHECKING:
     from ..capture.model import Capture
@@ -108,6 +108,8 @@ class PoseCheck:
     image_side: int  # larger side (pixels) of the photos as checked
     poses_off: bool  # the photos say the given poses are off: refine them
     message: str  # the warning when poses_off; else why nothing could be said, or "" when they fit
+    # The check's features, when it ran with a work_dir that outlives it: a refinement reuses them.
+    features: Optional[SharedFeatures] = None
 
     def summary(self) -> dict:
         """JSON-ready: the reconstruction sidecar's and the batch report's pose check."""
@@ -136,7 +138,7 @@ def check_given_poses(
     chosen = np.unique(np.round(np.linspace(0, len(posed) - 1, min(max_frames, len(posed)))).astype(int))
     frames = [posed[i] for i in chosen]
     poses = np.stack([f.pose for f in frames])
-    names = [f"{i:06d}.jpg" for i in range(len(frames))]
+    names = [photo_name(int(i)) for i in chosen]
     work = Path(work_dir) if work_dir else Path(tempfile.mkdtemp(prefix="vortx-pose-check-"))
     work.mkdir(parents=True, exist_ok=True)
     job = {
@@ -151,9 +153,12 @@ def check_given_poses(
         "pairs": [list(p) for p in neighbour_pairs(poses, 6, 2)],
         "rounds": 0,  # triangulate with the given poses only: no adjustment
         "loose_angle_deg": 3.0,
+        "features_from": None,
     }
     result, xyz, _ = run_pose_job(job, work, keep_work=work_dir is not None, task="pose check", progress=progress,
                                   cancel=cancel)
+    features = (SharedFeatures(work / "database.db", tuple(int(i) for i in chosen), int(max_side))
+                if work_dir is not None and (work / "database.db").is_file() else None)
     error = result.get("mean_reprojection_error")
     side = min(max(max(f.width, f.height) for f in frames), max_side) if max_side > 0 else max(max(f.width, f.height) for f in frames)
     if error is None or len(xyz) < MIN_POINTS:
@@ -161,10 +166,11 @@ def check_given_poses(
         message = (f"the given poses could not be checked against the photos: only {len(xyz)} points could be "
                    f"triangulated with them from {len(frames)} photos; if the result looks doubled or blurred, "
                    f"{REFINE_SUGGESTION}")
-        return PoseCheck(None if error is None else float(error), int(len(xyz)), len(frames), int(side), False, message)
+        return PoseCheck(None if error is None else float(error), int(len(xyz)), len(frames), int(side), False, message,
+                         features)
     if error > MAX_GIVEN_POSE_ERROR_PX:
         message = (f"the given poses look off: points triangulated with them reproject {error:.2f} px from where the "
                    f"photos show them (mean over {len(xyz)} points at {side} px; poses that fit give under "
                    f"{MAX_GIVEN_POSE_ERROR_PX:g} px), so surfaces will come out doubled or blurred; {REFINE_SUGGESTION}")
-        return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), True, message)
-    return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), False, "")
+        return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), True, message, features)
+    return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), False, "", features)

@@ -56,7 +56,9 @@ PASS_PRIORS = "camera positions within priors"
 
 @dataclass
 class RefineOptions:
-    max_side: int = 1024  # downscale photos so their larger side is at most this; 0 = full size
+    # Downscale photos so their larger side is at most this (0 = full size). The pose check's size, so
+    # its features serve here too; 2-3x the resolution stereo matches at (200-320 px).
+    max_side: int = 640
     # "keyframes": a metric capture's keyframes are adjusted and the frames between follow them;
     # "all": every posed frame is adjusted (captures in arbitrary units always use all).
     frames: str = "keyframes"
@@ -90,6 +92,18 @@ class RefineOptions:
     max_num_features: int = 8192  # SIFT features per photo
     num_threads: int = -1  # -1: all cores
     work_dir: Optional[Path] = None  # keep the worker's files (database, log) here; default: temporary, deleted
+    # The pose check's features (quality.check_given_poses with a work_dir) on the same capture at the
+    # same max_side: its photos join the adjusted frames and are not extracted again.
+    features_from: Optional["SharedFeatures"] = None
+
+
+@dataclass(frozen=True)
+class SharedFeatures:
+    """A COLMAP database with the features (and matches) of some posed frames, named by `photo_name`."""
+
+    database: Path
+    posed_indices: tuple[int, ...]  # the frames it has, as indices into the capture's posed frames
+    max_side: int  # the size their photos were downscaled to
 
 
 @dataclass(frozen=True)
@@ -269,7 +283,13 @@ def refine_poses(
     check(cancel)
     given = np.stack([f.pose for f in frames]).astype(np.float64)
     chosen = frames_to_adjust(given, capture.metric, options)
-    names = [f"{i:06d}.jpg" for i in range(len(chosen))]
+    shared = options.features_from
+    if shared is not None and (shared.max_side != options.max_side or not Path(shared.database).is_file()
+                               or max(shared.posed_indices, default=0) >= len(frames)):
+        shared = None  # features of another size (or another capture) cannot be reused
+    if shared is not None:
+        chosen = np.union1d(chosen, np.asarray(shared.posed_indices, dtype=np.int64))
+    names = [photo_name(int(k)) for k in chosen]
     work = Path(options.work_dir) if options.work_dir else Path(tempfile.mkdtemp(prefix="vortx-refine-"))
     work.mkdir(parents=True, exist_ok=True)
     job = {
@@ -283,11 +303,18 @@ def refine_poses(
         "cam_from_world": [_cam_from_world(given[k]).tolist() for k in chosen],
         "pairs": [list(p) for p in neighbour_pairs(given[chosen], options.neighbours, options.sequential_neighbours)],
         "loose_angle_deg": float(options.expected_error_deg),
+        "features_from": str(shared.database) if shared is not None else None,
     }
     result, xyz, rgb = run_pose_job(job, work, keep_work=options.work_dir is not None, task="pose refinement",
                                     progress=progress, cancel=cancel)
     check(cancel)
     return _adjusted(capture, posed_index, given, chosen, result, xyz, rgb, options, progress)
+
+
+def photo_name(posed_index: int) -> str:
+    """The worker's name for the capture's posed frame `posed_index` (the pose check names them alike,
+    so a refinement can reuse the check's features)."""
+    return f"{posed_index:06d}.jpg"
 
 
 def _cam_from_world(c2w: np.ndarray) -> np.ndarray:

@@ -36,6 +36,8 @@ pairs, one triangulation with the given poses and intrinsics (fixed); the parent
   cam_from_world     [[3x4], ...] the given world-to-camera poses, OpenCV axes, one per image
   pairs              [[i, j], ...] image indices to match
   loose_angle_deg    the triangulation accepts rays this far off (the given poses' error)
+  features_from      null, or a database of an earlier job on the same photos (same names, same
+                     max_side) whose features and matches are reused
 Its result: work_dir/result.json {"images": [{"name", "num_points3D"}], "mean_reprojection_error",
 "num_points3D", "scale": [sx, sy] (downscaled / source pixels), "database", "timings"} and
 work_dir/points.npz as for SfM plus the tracks (obs_image, obs_point, obs_uv; see `_write_tracks`).
@@ -44,6 +46,7 @@ work_dir/points.npz as for SfM plus the tracks (obs_image, obs_point, obs_uv; se
 from __future__ import annotations
 
 import json
+import shutil
 import sys
 import time
 import traceback
@@ -334,6 +337,10 @@ def run_refine(job: dict) -> None:
     db_path = work / "database.db"
     if db_path.exists():
         db_path.unlink()
+    if job.get("features_from") and Path(job["features_from"]).is_file():
+        # The pose check's features (same photos, same names and size): COLMAP skips the photos the
+        # database has, and the pairs it matched already.
+        shutil.copyfile(job["features_from"], db_path)
     timings: dict[str, float] = {}
     start = time.perf_counter()
     sizes, sx, sy = downscale_images(job, image_dir)
@@ -346,7 +353,11 @@ def run_refine(job: dict) -> None:
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = "PINHOLE"
     reader.camera_params = ",".join(repr(float(v)) for v in params[0])
-    _extract(job, db_path, image_dir, names, (pycolmap.CameraMode.SINGLE if shared else pycolmap.CameraMode.PER_IMAGE, reader))
+    with pycolmap.Database.open(str(db_path)) as db:
+        have = {im.name for im in db.read_all_images() if db.exists_keypoints(im.image_id)}
+    missing = [name for name in names if name not in have]
+    if missing:
+        _extract(job, db_path, image_dir, missing, (pycolmap.CameraMode.SINGLE if shared else pycolmap.CameraMode.PER_IMAGE, reader))
     timings["extract"] = time.perf_counter() - start
 
     start = time.perf_counter()

@@ -87,8 +87,13 @@ def test_poses_found_off_are_refined_when_asked_and_the_note_says_so():
     truth = _demo_capture(lambda poses: poses)
     off = _demo_capture(lambda poses: perturbed_poses(poses, np.random.default_rng(1)))
     true_poses = [f.pose for f in truth.frames]
-    prepared = prepare_capture(off, sfm=SFM_NEVER, check_poses=True, refine_when_off=True)
+    events = []
+    prepared = prepare_capture(off, sfm=SFM_NEVER, check_poses=True, refine_when_off=True,
+                               progress=lambda stage, done, total: events.append((stage, done, total)))
     assert prepared.pose_check is not None and prepared.pose_check.poses_off
+    # The refinement reuses the check's SIFT features: it extracts only the photos the check did not have.
+    extracted = [total for stage, done, total in events if stage == "poses: SIFT features" and done == 0]
+    assert extracted == [prepared.pose_check.frames] == [prepared.refinement.adjusted_frames] == [14]
     assert prepared.refinement is not None and prepared.refinement.refined
     assert any("refined before reconstruction" in n and "--keep-poses" in n for n in prepared.notes)
     assert not any("look off" in w for w in prepared.warnings)
