@@ -44,6 +44,7 @@ import torch
 from .capture import load_capture
 from .eval.stereo_depth import KEYS as DEPTH_KEYS, compare_depth, true_depth_at
 from .poses.prepare import SFM_NEVER, prepare_capture
+from .poses.refine import refine_poses
 from .recon.plan import plan_reconstruction, posed_frames
 from .recon.stereo_fusion import stereo_options
 from .stereo import stage_clock
@@ -479,8 +480,6 @@ def profile_markdown(profiles: list[dict[str, Any]]) -> str:
 
 def refine_profile(capture_path: Path) -> dict[str, Any]:
     """The default pose refinement of `capture_path`'s given poses, timed: wall and CPU seconds per stage."""
-    from .poses.refine import refine_poses
-
     capture = load_capture(capture_path)
     started, cpu = time.perf_counter(), time.process_time()
     result = refine_poses(capture)

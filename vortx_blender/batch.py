@@ -32,6 +32,7 @@ from ..engine.errors import VortxError
 from ..engine.recon.settings import ReconSettings
 from .capture import loaded_capture
 from .export import export_result
+from .poses import REFINEMENT_RECORD
 from .reconstruct import write_scene_settings
 from .result import result_objects
 from .texture import bake_summary
@@ -165,6 +166,8 @@ def run_capture(args: argparse.Namespace, job: CaptureJob, report: CaptureReport
         report.frames["posed"] = settings.posed_frame_count
         # The similarity between the capture's own coordinates and the result's Z-up world, both ways.
         report.poses["frame"] = json.loads(settings.capture_frame) if settings.capture_frame else None
+        if scene.get(REFINEMENT_RECORD):  # the refinement's numbers and time per stage
+            report.poses["refinement"] = json.loads(scene[REFINEMENT_RECORD])
     print_progress(next(number), steps, "poses", detail, started)
 
     started = time.perf_counter()

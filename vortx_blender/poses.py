@@ -10,6 +10,7 @@ this session still has it (`capture.loaded_capture`); otherwise it is loaded fro
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Optional
@@ -20,7 +21,7 @@ from ..engine import capture as engine_capture
 from ..engine import poses as engine_poses  # its functions looked up at call time: tests stand in for them
 from ..engine.capture import Capture
 from ..engine.jobs import CancelToken, ProgressCallback
-from ..engine.poses.prepare import SFM_ALWAYS, PreparedCapture, prepare_capture
+from ..engine.poses.prepare import SFM_ALWAYS, PreparedCapture, prepare_capture, refinement_summary
 from ..engine.poses.refine import STATUS_REFINED
 from .cameras import move_capture_cameras
 from .capture import scene_camera_height
@@ -139,4 +140,9 @@ def apply_refined_poses(scene: "bpy.types.Scene", refined: "RefineResult") -> No
         settings.pose_status = f"{settings.pose_status}, {mark}"
     settings.pose_source = POSES_REFINED
     settings.pose_check = ""
+    # What the refinement did and what each stage cost, as the sidecar's poses.refinement: the batch report reads it.
+    scene[REFINEMENT_RECORD] = json.dumps(refinement_summary(refined))
     print(refined.report)
+
+
+REFINEMENT_RECORD = "vortx_pose_refinement"  # scene custom property: the last refinement's summary (JSON)

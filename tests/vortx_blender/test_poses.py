@@ -4,7 +4,9 @@ engine's SfM and refinement are replaced by stand-ins here (the real ones have t
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
+import json
 from pathlib import Path
 
 import numpy as np
@@ -110,6 +112,33 @@ def test_refine_poses_moves_the_cameras_and_lists_refused_frames(blender, empty_
     assert "Refined 4 of 5 posed frames: rotation changed by" in out and "3.2 cm max" in out
     assert "0003.jpg refused (turned 25 deg); it keeps its given pose" in out
     assert empty_scene.vortx.pose_status.endswith(", refined")
+    # The batch report's poses.refinement: the numbers and each stage's time, as the sidecar has them.
+    record = json.loads(empty_scene[blender.vortx_blender.poses.REFINEMENT_RECORD])
+    assert record["refined"] == 4 and record["refused"] == {"0003.jpg": "turned 25 deg"}
+    assert record["given_reprojection_error_px"] == 1.6 and not record["kept_given"]
+
+
+def test_a_refinement_that_kept_the_given_poses_leaves_the_cameras_and_says_so(blender, empty_scene, monkeypatch,
+                                                                             tmp_path: Path, capfd) -> None:
+    import bpy
+
+    poses = _poses_module(blender)
+    blender.vortx_blender.capture.apply_capture(empty_scene, _capture(blender, tmp_path), tmp_path)
+    given = _camera_poses(bpy)
+    nudged = given[1].copy()
+    nudged[:3, 3] += [0.03, -0.01, 0.0]
+
+    def fake_refine(capture, options=None, progress=None, cancel=None):
+        result = _refine_result(blender, capture, {1: nudged}, refused=[])
+        return dataclasses.replace(result, capture=capture, kept_given="the refined poses explain the photos no better: "
+                                   "0.41 px mean reprojection error against 0.42 px with the given ones")
+
+    monkeypatch.setattr(poses, "refine_poses", fake_refine)
+    assert bpy.ops.vortx.refine_poses() == {"FINISHED"}
+    np.testing.assert_allclose(np.stack(_camera_poses(bpy)), np.stack(given))
+    assert "Kept the given poses: the refined poses explain the photos no better" in capfd.readouterr().out
+    assert empty_scene.vortx.pose_status.endswith(", kept as given") and not empty_scene.vortx.pose_check
+    assert json.loads(empty_scene[blender.vortx_blender.poses.REFINEMENT_RECORD])["kept_given"].startswith("the refined")
 
 
 def test_failed_refine_poses_changes_nothing(blender, empty_scene, monkeypatch, tmp_path: Path) -> None:
