@@ -191,7 +191,7 @@ class _Problem:
         V = V + damping * np.einsum("pii->pi", V)[:, :, None] * np.eye(3) + 1e-9 * np.eye(3)
         observed = np.bincount(pt, minlength=num_points) > 0
         V[~observed] = np.eye(3)
-        V_inv = np.linalg.inv(V)
+        V_inv = _inverse_3x3(V)
         if not move_cameras:
             point_step = -np.einsum("pij,pj->pi", V_inv, g_point)
             return np.zeros((len(self.rotation), self.per_camera)), np.zeros(self.num_groups), point_step
@@ -275,6 +275,19 @@ class _Problem:
     def cam_from_world(self) -> np.ndarray:
         t = -np.einsum("cij,cj->ci", self.rotation, self.centre)
         return np.concatenate([self.rotation, t[:, :, None]], axis=2)
+
+
+def _inverse_3x3(m: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) -> (N, 3, 3) inverses by the adjugate: batched LAPACK spends ~100x longer on 3x3s.
+    The blocks are damped normal-equation blocks (positive definite), so the determinant is > 0."""
+    a, b, c = m[:, 0, 0], m[:, 0, 1], m[:, 0, 2]
+    d, e, f = m[:, 1, 0], m[:, 1, 1], m[:, 1, 2]
+    g, h, i = m[:, 2, 0], m[:, 2, 1], m[:, 2, 2]
+    co = np.stack([e * i - f * h, c * h - b * i, b * f - c * e,
+                   f * g - d * i, a * i - c * g, c * d - a * f,
+                   d * h - e * g, b * g - a * h, a * e - b * d], axis=1).reshape(-1, 3, 3)
+    det = a * co[:, 0, 0] + b * co[:, 1, 0] + c * co[:, 2, 0]
+    return co / det[:, None, None]
 
 
 def _block_diagonal(blocks: np.ndarray) -> sparse.csr_matrix:
