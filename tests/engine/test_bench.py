@@ -3,8 +3,8 @@ exercised end to end by tests/engine/recon/test_driver.py)."""
 
 from __future__ import annotations
 
-from engine.bench import (FULL_CASES, QUICK_CASES, compare_with_stereo, compare_with_vortx, machine_info, markdown,
-                          network_seconds, projected_memory, stereo_cases)
+from engine.bench import (DEPTH_KEYS, FULL_CASES, QUICK_CASES, compare_with_stereo, compare_with_vortx, machine_info,
+                          markdown, network_seconds, profile_markdown, projected_memory, stereo_cases)
 from engine.recon.memory_estimate import (CNN_BYTES_PER_VOXEL, box_room_surface_area, coarse_voxels, estimate_memory,
                                           keep_fraction_voxels, surface_band_voxels)
 
@@ -140,3 +140,22 @@ def test_refine_profile_table_gives_each_stage_and_the_stretch_scales():
     table = refine_markdown(profile).splitlines()
     assert table[0].count("|") == table[1].count("|") == table[2].count("|")
     assert "| sun3d | 99 (58) | 2275 | 1.82 -> 0.77 | 1.000 / 0.999 | 0.9 | 17.0 | 8.2 | 1.3 | 6.3 | 40.2 |" == table[2]
+
+
+def test_patchmatch_profile_table_has_a_row_per_stage_and_the_depth_metrics():
+    quality = {k: 0.5 for k in DEPTH_KEYS}
+    profiles = [
+        {"image_size": [160, 120], "overrides": {}, "cpu_s_per_keyframe": 2.0,
+         "stages_cpu_s_per_keyframe": {"warp": 0.7, "geometric pass/warp": 0.3}, "quality": quality},
+        {"image_size": [320, 240], "overrides": {"coarse_iterations": 1}, "cpu_s_per_keyframe": 8.0,
+         "stages_cpu_s_per_keyframe": {"warp": 3.0, "NCC": 1.0}, "quality": quality},
+    ]
+    table = profile_markdown(profiles)
+    lines = table.splitlines()
+    assert "320x240 coarse_iterations=1" in lines[0]
+    rows = {line.split("|")[1].strip(): line for line in lines[2:]}
+    assert rows["warp"].count("0.700") == 1 and "3.000" in rows["warp"]
+    assert "0.000" in rows["NCC"], "a stage one run lacks reads 0"
+    # The geometric pass's stages come after the photometric ones.
+    assert lines.index(rows["geometric pass/warp"]) > lines.index(rows["warp"])
+    assert "**8.00**" in rows["**total**"] and all(k in rows for k in DEPTH_KEYS)
