@@ -32,8 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(for slightly-off tracker, ARKit or SLAM poses)")
     parser.add_argument("--matcher", choices=MATCHERS, default="auto",
                         help="feature matching: exhaustive for small photo sets, sequential for video (default: auto)")
-    parser.add_argument("--max-side", type=int, default=1024,
-                        help="downscale photos to this larger side for SfM or refinement (default 1024; 0 = full size)")
+    parser.add_argument("--max-side", type=int, default=None,
+                        help=f"downscale photos to this larger side for SfM (default {SfmOptions.max_side}) or refinement "
+                             f"(default {RefineOptions.max_side}); 0 = full size")
     parser.add_argument("--intrinsics", choices=INTRINSICS, default="auto",
                         help="fixed: trust the capture's K; prior: refine it; estimate: ignore it (default: auto)")
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
@@ -59,8 +60,9 @@ def _known_distance(values: list[str] | None) -> KnownDistance | None:
 
 def run(args: argparse.Namespace) -> int:
     known_distance = _known_distance(args.known_distance)
-    options = SfmOptions(matcher=args.matcher, max_side=args.max_side, intrinsics=args.intrinsics, work_dir=args.work_dir)
-    refine_options = RefineOptions(max_side=args.max_side, work_dir=args.work_dir)
+    sizes = {} if args.max_side is None else {"max_side": args.max_side}
+    options = SfmOptions(matcher=args.matcher, intrinsics=args.intrinsics, work_dir=args.work_dir, **sizes)
+    refine_options = RefineOptions(work_dir=args.work_dir, **sizes)
     progress = TqdmProgress(disable=args.quiet)
     try:
         capture = load_capture(args.capture, progress=progress)

@@ -17,7 +17,7 @@ import numpy as np
 from ..capture.naming import name_list
 from ..errors import PoseError
 from .process import run_pose_job
-from .refine import SharedFeatures, _cam_from_world, neighbour_pairs, photo_name
+from .refine import FEATURE_MAX_SIDE, SharedFeatures, _cam_from_world, neighbour_pairs, photo_name
 
 if TYPE_CHECKING:
     from ..capture.model import Capture
@@ -91,7 +91,7 @@ def significant_distortion(shift_px: float, image_size: tuple[int, int]) -> bool
 # COLMAP's 4 px filter. The check runs on a subset of the photos at a modest size, so it costs a
 # few seconds where a full refinement costs a minute.
 MIN_CHECK_FRAMES = 8  # fewer posed photos than this: too few neighbours to match, the check is skipped
-POSE_CHECK_MAX_SIDE = 640  # photos downscaled to this larger side: the threshold is in these pixels
+POSE_CHECK_MAX_SIDE = FEATURE_MAX_SIDE  # photos downscaled to this larger side (the refinement's): the threshold is in these pixels
 POSE_CHECK_MAX_FRAMES = 24  # evenly spaced frames checked (their neighbours by pose are matched)
 MAX_GIVEN_POSE_ERROR_PX = 1.0  # mean reprojection error above which the given poses are called off
 REFINE_SUGGESTION = "refine them against the photos: engine reconstruct and vortx_batch.py do so unless --keep-poses, " \

@@ -50,15 +50,20 @@ STATUS_REFINED = "refined"
 STATUS_REFUSED = "refused"
 STATUS_NOT_REFINED = "not refined"
 
+# The photos' larger side for the pose check's and the refinement's SIFT features. Measured on the
+# SUN3D room (docs/experiments.md): depth within 5 % after refinement 0.41 at 640 px, 0.46 at 480,
+# 0.44 at 320; SIFT at 480 costs 0.3-0.4 of 640's. 1.5-2.5x what stereo matches at (200-320 px).
+FEATURE_MAX_SIDE = 480
+
 PASS_HELD = "camera positions held"
 PASS_PRIORS = "camera positions within priors"
 
 
 @dataclass
 class RefineOptions:
-    # Downscale photos so their larger side is at most this (0 = full size). The pose check's size, so
-    # its features serve here too; 2-3x the resolution stereo matches at (200-320 px).
-    max_side: int = 640
+    # Downscale photos so their larger side is at most this (0 = full size); the pose check's size, so
+    # its features serve here too.
+    max_side: int = FEATURE_MAX_SIDE
     # "keyframes": a metric capture's keyframes are adjusted and the frames between follow them;
     # "all": every posed frame is adjusted (captures in arbitrary units always use all).
     frames: str = "keyframes"
