@@ -193,9 +193,9 @@ def _run_planned(
     check(cancel)
     with timer.stage("finish"):
         mesh, finish_stats = finish_reconstruction(mesh, plan, settings, stereo_maps)
-    if finish_stats is not None:
+    if finish_stats is not None:  # the sidecar's "mesh" is the mesh written; marching cubes' count stays in "finish"
         stats["finish"] = finish_stats
-        stats["mesh"]["finished_faces"] = int(len(mesh.faces))
+        stats["mesh"] = {"vertices": int(len(mesh.vertices)), "faces": int(len(mesh.faces))}
     with timer.stage("colour"):
         mesh.colors = colour_mesh(mesh, plan, settings, progress, cancel)
     if stereo_maps:
