@@ -76,6 +76,7 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
         "stereo_sources": 6,
         "stereo_min_ncc": 0.4,
         "stereo_consistency": 1,
+        "finish": "CLEAN",
         "keep_given_poses": True,
         "quality": "CUSTOM",  # read from the stereo settings above (no preset has them); choosing Custom sets nothing
         "texture_size": 2048,
