@@ -315,9 +315,10 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
     kinds = [p.kind for p in planes]
     structured = FLOOR in kinds and kinds.count(WALL) >= 2
     stats.update({"min_views": min_views, "small_piece_views": small_views if structured else None})
-    drop_piece, pieces, dropped = _pieces_to_drop(kept, votes, min_views, small_views if structured else 0)
-    stats.update({"pieces_before": pieces, "pieces_dropped": dropped})
-    kept = keep_faces(kept, ~drop_piece)
+    if views:  # without any view there is no evidence to judge a piece by: all stay
+        drop_piece, pieces, dropped = _pieces_to_drop(kept, votes, min_views, small_views if structured else 0)
+        stats.update({"pieces_before": pieces, "pieces_dropped": dropped})
+        kept = keep_faces(kept, ~drop_piece)
     if mode == FINISH_ROOM:
         absorbed = _pieces_absorbed(kept, grids, ABSORB_TOLERANCE_FACTOR * tolerance)
         stats["pieces_absorbed"] = int(absorbed[1])

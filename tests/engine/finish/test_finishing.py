@@ -113,3 +113,13 @@ def test_clean_flattens_and_adds_nothing(scene):
 def test_off_returns_the_mesh(scene):
     mesh, views, centres = scene
     assert finish_mesh(mesh, views, centres, 0.04, FINISH_OFF).mesh is mesh
+
+
+def test_without_views_no_piece_is_judged_and_nothing_is_added(scene):
+    """No depth map, no evidence: the planes still flatten their surface, but no piece is dropped for want
+    of views (the floater stays) and no hole is closed (nothing is framed)."""
+    mesh, _, centres = scene
+    out = finish_mesh(mesh, [], centres, 0.04, FINISH_ROOM).mesh
+    assert _faces_near(out, (1.7, 1.0, 1.1), 0.12).any()  # the floater: nothing says it is in free space
+    assert not (out.attributes[ADDED] > 0).any()
+    assert len(out.faces) > 0.5 * len(mesh.faces)
