@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from engine.stereo.depth_maps import DepthMap
-from engine.observation import COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE
+from engine.observation import ADDED, COMPLETED, OBSERVATIONS, STEREO_CONFIDENCE
 from engine.mesh_io import Mesh
 from engine.stereo.vertex_evidence import attach_evidence, evidence_summary, observe_vertices, vertex_evidence
 
@@ -124,7 +124,8 @@ def test_the_stereo_method_writes_the_layer_into_its_ply(tmp_path) -> None:
     assert main(["reconstruct", str(tmp_path / "room"), "--out", str(out), "--method", "stereo", "--voxel-size", "0.08",
                  "--stereo-views", "8", "--stereo-planes", "32", "--colour-views", "2", "--quiet"]) == 0
     mesh = read_ply(out)
-    assert set(mesh.attributes) == {OBSERVATIONS, STEREO_CONFIDENCE, COMPLETED}
+    # The finishing stage (Room by default) adds its own mark of the faces it added.
+    assert set(mesh.attributes) == {OBSERVATIONS, STEREO_CONFIDENCE, COMPLETED, ADDED}
     observations, confidence = mesh.attributes[OBSERVATIONS], mesh.attributes[STEREO_CONFIDENCE]
     assert observations.max() <= 8 and (observations >= 1).mean() > 0.6
     seen = observations > 0
