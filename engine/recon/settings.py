@@ -14,6 +14,7 @@ from typing import Any, Optional
 
 from ..errors import VortxError
 from ..finish.modes import FINISH_MODES, FINISH_ROOM  # the finishing stage's modes live with it
+from ..geometry.view_selection import DEFAULT_KEYFRAME_ANGLE_DEG, DEFAULT_KEYFRAME_TRANSLATION_M  # the keyframe rule's
 from ..stereo.options import STEREO_MATCHERS, StereoOptions  # the stereo defaults live with the stereo code
 from ..texture.options import TEXTURE_SIZES, TextureOptions  # and the texture bake's with the bake
 from ..texture.presets import DEFAULT_PRESET, PRESET_NAMES, PRESETS, with_preset  # the headset budgets
@@ -110,8 +111,10 @@ class ReconSettings:
     seed: int = setting(
         0, "seed of the per-tile view sampling (and of random weights); the same seed gives the same mesh",
         (CLI, BLENDER), methods=("vortx",), min=0)
-    keyframe_translation: float = setting(0.1, "metres since the last kept keyframe", ENGINE_ONLY, min=0.0)
-    keyframe_angle_deg: float = setting(15.0, "optical-axis angle since the last kept keyframe", ENGINE_ONLY, min=0.0)
+    keyframe_translation: float = setting(DEFAULT_KEYFRAME_TRANSLATION_M, "metres since the last kept keyframe", ENGINE_ONLY,
+                                          min=0.0)
+    keyframe_angle_deg: float = setting(DEFAULT_KEYFRAME_ANGLE_DEG, "optical-axis angle since the last kept keyframe",
+                                        ENGINE_ONLY, min=0.0)
     frustum_depth: float = setting(
         4.0, "scene bounds = the camera frusta cut at this depth in metres (official: 4 m)",
         (CLI, BLENDER), min=0.1, max=100.0, label="Frustum Depth")
