@@ -66,7 +66,8 @@ SITE_PACKAGES = "site-packages"  # the folder name under extension_path_user
 # Import name -> distribution, for everything the engine imports inside Blender jobs: loading
 # captures (cv2, PIL), structure from motion (pycolmap), the network (torch, safetensors), marching
 # cubes (skimage), the texture bake's UV atlas (xatlas) and the VR preset's decimation
-# (fast_simplification). Training/CLI-only packages (tqdm, efficientnet weights, scipy for eval) are not here.
+# (fast_simplification), the pose refinement's bundle adjustment and the finishing stage (scipy).
+# Training/CLI-only packages (tqdm, efficientnet weights) are not here.
 RUNTIME_MODULES: dict[str, str] = {
     "torch": "torch",
     "cv2": "opencv-python-headless",
@@ -76,6 +77,7 @@ RUNTIME_MODULES: dict[str, str] = {
     "safetensors": "safetensors",
     "xatlas": "xatlas",
     "fast_simplification": "fast-simplification",
+    "scipy": "scipy",
 }
 # Distributions Blender itself provides; never installed, whatever the resolver says.
 BLENDER_PROVIDED: frozenset[str] = frozenset({"numpy"})
@@ -92,6 +94,7 @@ NEEDED_FOR: dict[str, str] = {
     "safetensors": "loading the VoRTX weights",
     "xatlas": "Bake Texture",
     "fast-simplification": "Bake Texture (decimation)",
+    "scipy": "Refine Poses and Reconstruct (bundle adjustment, finishing)",
 }
 
 PIP_QUIET_FLAGS = ("--no-input", "--disable-pip-version-check", "--progress-bar", "off")

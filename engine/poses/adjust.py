@@ -29,7 +29,6 @@ from dataclasses import dataclass
 from typing import Optional
 
 import numpy as np
-import scipy.sparse as sparse
 
 
 @dataclass
@@ -212,6 +211,8 @@ class _Problem:
             data.append(J_focal)
             row_index.append(rows)
             col_index.append(np.repeat((num_cams * k + self.groups[cam])[:, None], 2, axis=1))
+        import scipy.sparse as sparse  # defers scipy: not loaded when Blender registers the extension
+
         Jc = sparse.csr_matrix((np.concatenate([d.ravel() for d in data]),
                                 (np.concatenate([i.ravel() for i in row_index]),
                                  np.concatenate([j.ravel() for j in col_index]))), shape=(2 * count, n_cam))
@@ -290,8 +291,10 @@ def _inverse_3x3(m: np.ndarray) -> np.ndarray:
     return co / det[:, None, None]
 
 
-def _block_diagonal(blocks: np.ndarray) -> sparse.csr_matrix:
+def _block_diagonal(blocks: np.ndarray) -> "scipy.sparse.csr_matrix":
     """(P, 3, 3) -> sparse (3P, 3P) block-diagonal matrix."""
+    import scipy.sparse as sparse  # defers scipy: not loaded when Blender registers the extension
+
     count = len(blocks)
     base = (np.arange(count) * 3)[:, None, None]
     rows = np.broadcast_to(base + np.arange(3)[None, :, None], (count, 3, 3))

@@ -63,8 +63,8 @@ def _load_without(modules: list[str], tmp_path: Path) -> dict:
     return json.loads(lines[-1][len("RESULT "):])
 
 
-def test_registers_without_torch_pycolmap_skimage_safetensors(tmp_path: Path) -> None:
-    blocked = ["torch", "pycolmap", "skimage", "safetensors"]
+def test_registers_without_torch_pycolmap_skimage_safetensors_scipy(tmp_path: Path) -> None:
+    blocked = ["torch", "pycolmap", "skimage", "safetensors", "scipy"]
     result = _load_without(blocked, tmp_path)
     assert result["loaded"], result
     assert result["operators"] == [True, True]
