@@ -77,19 +77,27 @@ class Adjusted:
 
 
 def rodrigues(w: np.ndarray) -> np.ndarray:
-    """(N, 3) axis-angle -> (N, 3, 3) rotation matrices."""
+    """(N, 3) axis-angle -> (N, 3, 3) rotation matrices (`log_rotations` is its inverse)."""
     w = np.asarray(w, dtype=np.float64).reshape(-1, 3)
     theta = np.linalg.norm(w, axis=1)
     small = theta < 1e-12
-    axis = w / np.where(small, 1.0, theta)[:, None]
-    cross = np.zeros((len(w), 3, 3))
-    cross[:, 0, 1], cross[:, 0, 2] = -axis[:, 2], axis[:, 1]
-    cross[:, 1, 0], cross[:, 1, 2] = axis[:, 2], -axis[:, 0]
-    cross[:, 2, 0], cross[:, 2, 1] = -axis[:, 1], axis[:, 0]
+    cross = _skew(w / np.where(small, 1.0, theta)[:, None])
     s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
     rotation = np.eye(3)[None] + s * cross + (1.0 - c) * (cross @ cross)
     rotation[small] = np.eye(3)
     return rotation
+
+
+def log_rotations(rotation: np.ndarray) -> np.ndarray:
+    """(N, 3, 3) rotation matrices -> (N, 3) axis-angle (angles below 180 deg). The angle from atan2
+    of the skew part and the trace: arccos of the trace alone loses precision near 0."""
+    rotation = np.asarray(rotation, dtype=np.float64).reshape(-1, 3, 3)
+    skew = np.stack([rotation[:, 2, 1] - rotation[:, 1, 2], rotation[:, 0, 2] - rotation[:, 2, 0],
+                     rotation[:, 1, 0] - rotation[:, 0, 1]], axis=1)
+    sin = 0.5 * np.linalg.norm(skew, axis=1)
+    angle = np.arctan2(sin, 0.5 * (np.trace(rotation, axis1=1, axis2=2) - 1.0))
+    factor = np.where(sin > 1e-12, angle / (2.0 * np.where(sin > 1e-12, sin, 1.0)), 0.5)
+    return skew * factor[:, None]
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -141,13 +149,7 @@ class _Problem:
     def rotation_offsets(self, rotation=None) -> np.ndarray:
         """(C, 3) axis-angle w with R = exp([w]x) R_given, the rotations' distance from the given ones."""
         rotation = self.rotation if rotation is None else rotation
-        delta = np.einsum("cij,ckj->cik", rotation, self.given_rotation)
-        cos = np.clip(0.5 * (np.trace(delta, axis1=1, axis2=2) - 1.0), -1.0, 1.0)
-        angle = np.arccos(cos)
-        axis = np.stack([delta[:, 2, 1] - delta[:, 1, 2], delta[:, 0, 2] - delta[:, 2, 0], delta[:, 1, 0] - delta[:, 0, 1]], 1)
-        sin = np.sin(angle)
-        factor = np.where(sin > 1e-9, angle / (2.0 * np.where(sin > 1e-9, sin, 1.0)), 0.5)
-        return axis * factor[:, None]
+        return log_rotations(np.einsum("cij,ckj->cik", rotation, self.given_rotation))
 
     def cost(self, residual: np.ndarray, y: np.ndarray, centre=None, rotation=None) -> float:
         c2 = self.options.loss_scale_px ** 2

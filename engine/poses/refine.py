@@ -42,7 +42,7 @@ from ..capture.naming import name_list
 from ..errors import PoseError
 from ..geometry.view_selection import DEFAULT_KEYFRAME_ANGLE_DEG, DEFAULT_KEYFRAME_TRANSLATION_M, select_keyframes
 from ..jobs import CancelToken, ProgressCallback, check, report
-from .adjust import AdjustOptions, Tracks, adjust, rodrigues
+from .adjust import AdjustOptions, Tracks, adjust, log_rotations, rodrigues
 from .align import rotation_angle_deg, umeyama
 from .process import run_pose_job
 
@@ -510,21 +510,11 @@ def follow_keyframes(given_c2w: np.ndarray, chosen: np.ndarray, adjusted_c2w: np
         a = b - 1
         t = (i - chosen[a]) / (chosen[b] - chosen[a])
         relative = correction[a].T @ correction[b]
-        w = _log_rotation(relative)
+        w = log_rotations(relative)[0]
         step = correction[a] @ rodrigues((t * w)[None])[0]
         out[i, :3, :3] = given_c2w[i, :3, :3] @ step
         out[i, :3, 3] = given_c2w[i, :3, 3] + (1 - t) * shift[a] + t * shift[b]
     return out
-
-
-def _log_rotation(rotation: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation -> (3,) axis-angle."""
-    cos = np.clip(0.5 * (np.trace(rotation) - 1.0), -1.0, 1.0)
-    angle = float(np.arccos(cos))
-    if angle < 1e-9:
-        return np.zeros(3)
-    axis = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0], rotation[1, 0] - rotation[0, 1]])
-    return axis / (2.0 * np.sin(angle)) * angle
 
 
 def _apply(capture: Capture, posed_index: list[int], given: np.ndarray, chosen: np.ndarray, adjusted_c2w: np.ndarray,

@@ -105,3 +105,16 @@ def test_agrees_with_scipy_least_squares_on_a_small_problem():
     R_reference = rodrigues(reference.x[:24].reshape(8, 3)) @ given
     assert angles_deg(ours.cam_from_world[:, :, :3], R_reference).max() < 1e-3
     assert np.abs(ours.points - reference.x[24:].reshape(-1, 3)).max() < 1e-4
+
+
+def test_rotations_and_their_logarithm_match_opencv():
+    import cv2
+
+    from engine.poses.adjust import log_rotations
+
+    rng = np.random.default_rng(2)
+    w = rng.normal(size=(40, 3))
+    w *= (np.linspace(1e-8, 3.1, 40) / np.linalg.norm(w, axis=1))[:, None]  # from a hair to nearly 180 deg
+    opencv = np.stack([cv2.Rodrigues(v)[0] for v in w])
+    np.testing.assert_allclose(rodrigues(w), opencv, atol=1e-12)
+    np.testing.assert_allclose(log_rotations(opencv), w, atol=1e-9)
