@@ -19,7 +19,7 @@ instead: the structural planes (`planes.py`), the depth maps' votes (`free_space
   anything off the planes stays as it was. Added faces are marked: the vertex attribute ADDED is 1 on
   them (their vertices are their own, not shared with seen faces).
 
-Input and output are `engine.mesh_io.Mesh` in the engine's world (metres, Z up); colours and evidence
+Input and output are `engine.mesh_io.Mesh` in the engine's world (metres, Z up, or tilted: `planes.room_up`); colours and evidence
 are attached after finishing by the reconstruction, so only positions, faces and ADDED come out.
 """
 
@@ -36,7 +36,7 @@ from ..meshops import compact, face_pieces, keep_faces, vertex_normals
 from ..observation import ADDED  # vertex attribute: 1 on faces the finishing added (not seen), 0 elsewhere
 from .free_space import DepthView, Votes, view_votes
 from .modes import FINISH_CLEAN, FINISH_MODES, FINISH_OFF, FINISH_ROOM
-from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_structural_planes
+from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_structural_planes, room_up
 
 
 SNAP_DISTANCE = 0.6  # m: a plane's observed end this near a neighbouring wall is taken to that wall
@@ -260,11 +260,12 @@ def _pieces_absorbed(mesh: Mesh, grids: Sequence[PlaneGrid], band: float) -> tup
 
 
 def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarray, voxel_size: float, mode: str,
-                options: Optional[FinishOptions] = None) -> FinishResult:
-    """The finished mesh (see the module doc) of `mesh` (world metres, Z up, wound toward free space),
-    judged by `views` (depth maps with their cameras) and the capture's `camera_centres` (C, 3).
-    mode: FINISH_OFF (returned as it is), FINISH_CLEAN or FINISH_ROOM. The result's mesh has normals
-    and the ADDED attribute, no colours."""
+                options: Optional[FinishOptions] = None, camera_poses: Optional[np.ndarray] = None) -> FinishResult:
+    """The finished mesh (see the module doc) of `mesh` (world metres, wound toward free space), judged
+    by `views` (depth maps with their cameras) and the capture's `camera_centres` (C, 3).
+    mode: FINISH_OFF (returned as it is), FINISH_CLEAN or FINISH_ROOM. camera_poses: (C, 4, 4)
+    camera-to-world whose horizon says where up is (`planes.room_up`; None: the views' poses). The
+    result's mesh has normals and the ADDED attribute, no colours."""
     if mode not in FINISH_MODES:
         raise ValueError(f"finish mode must be one of {FINISH_MODES}, got {mode!r}")
     options = options or FinishOptions()
@@ -274,9 +275,13 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
     cell = options.cell or voxel_size
     vertices = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, np.int64)
-    planes, layout = find_structural_planes(vertices, faces, camera_centres, options.min_plane_area)
-    centroids, areas, _ = face_geometry(vertices, faces)
-    stats: dict[str, Any] = {"mode": mode, "planes": [p.to_dict() for p in planes], **layout,
+    if camera_poses is None and views:
+        camera_poses = np.stack([np.asarray(view.pose, np.float64) for view in views])
+    # A metric capture's world is its own frame, which need not be level (the SUN3D room's is 19 deg off).
+    centroids, areas, face_normals = face_geometry(vertices, faces)
+    up, up_info = room_up(camera_poses, centroids, areas, face_normals)
+    planes, layout = find_structural_planes(vertices, faces, camera_centres, options.min_plane_area, up=up)
+    stats: dict[str, Any] = {"mode": mode, "planes": [p.to_dict() for p in planes], **layout, **up_info,
                              "faces_in": int(len(faces))}
 
     grids = []

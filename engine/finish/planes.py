@@ -1,6 +1,8 @@
 """The room's structural planes (floor, ceiling, walls) found in a reconstructed surface.
 
-Gravity is known (world Z up), so the search is split as indoor layout methods split it:
+Gravity is known, so the search is split as indoor layout methods split it. Up is world Z, unless the
+cameras' horizon says the world is tilted (a metric capture's own frame is kept as it is, and the SUN3D
+room's is 19 deg off level): then the planes are found in a frame levelled by the horizon (`room_up`).
 - floor and ceiling: area-weighted histograms of the height of the faces that face up (floor) or
   down (ceiling); the floor is the lowest strong peak below the cameras, the ceiling the highest
   above them (a table top is a smaller, higher peak).
@@ -32,6 +34,9 @@ HEADING_TOLERANCE_DEG = 20.0  # a wall face's heading within this of its wall's 
 MANHATTAN_TOLERANCE_DEG = 15.0
 MANHATTAN_SHARE = 0.5  # of the vertical area within tolerance of the Manhattan directions: the frame holds
 MANHATTAN_SHARPNESS = 1.5  # the walls' position histograms this much sharper square to the frame: it holds
+MANHATTAN_AGREEING_SHARPNESS = 1.2  # a weaker position sharpness holds when the normals agree on the heading:
+MANHATTAN_AGREEING_SHARE = 0.3  # this share of the vertical area within tolerance of their frame,
+MANHATTAN_AGREEING_DEG = 3.0  # whose heading is within this of the positions' one
 MANHATTAN_FACING_DEG = 45.0  # in a Manhattan frame a wall's faces face within this of its normal (crumpled stereo)
 HISTOGRAM_BIN = 0.02  # m
 PEAK_WINDOW = 0.06  # m either side of a peak: the area that supports it
@@ -41,6 +46,13 @@ BEHIND_MARGIN = 0.2  # m behind a candidate wall before surface counts as "behin
 # Surface behind a wall across its span, as a share of the wall's own area: a cabinet front has more
 # wall behind it than its own area; a wall has at most what its windows and doors show of outside.
 MAX_BEHIND_SHARE = 1.0
+MAX_BELOW_FLOOR_SHARE = 3.0  # surface below a floor, as a share of its area (stereo's error puts some there)
+MAX_UP_BELOW_FLOOR_SHARE = 0.5  # up-facing surface below a floor (a lower floor: the candidate is a table top)
+# The room's up from the cameras' horizon (`room_up`): considered from MIN_TILT_DEG off world Z; beyond
+# MAX_TILT_DEG the cameras were not held level, or the world is not Z up at all.
+MIN_TILT_DEG = 1.0
+MAX_TILT_DEG = 30.0
+HORIZON_MIN_SPREAD = 0.03  # mean sin^2 of the x axes' spread about their mean: under ~10 deg of headings
 
 
 @dataclass
@@ -217,13 +229,90 @@ def _heading_from_positions(centroids: np.ndarray, areas: np.ndarray, normals: n
     return float(np.mod(heading + np.angle(np.sum(weights * np.exp(4j * offset))) / 4, np.pi / 2))
 
 
+def camera_horizon_up(poses: np.ndarray) -> Optional[np.ndarray]:
+    """The room's up (3,) unit from hand-held cameras (C, 4, 4) camera-to-world: the normal of the
+    plane their x axes (OpenCV right) lie in, signed like their mean up (-y). None when it is not
+    measured: fewer than 3 cameras, or their headings too alike to span a plane.
+
+    People hold a camera with little roll but tilt it up and down freely, so the x axis is close to
+    horizontal while the mean of the up vectors leans back by the mean pitch (the SUN3D study room's
+    frame is its cameras' mean up and is 19 deg off the truth's floor; its cameras' x axes give the
+    floor's normal within 2 deg: docs/experiments.md, "A finished room for VR", issue 35)."""
+    poses = np.asarray(poses, np.float64).reshape(-1, 4, 4)
+    if len(poses) < 3:
+        return None
+    right = poses[:, :3, 0]
+    values, vectors = np.linalg.eigh(right.T @ right)
+    if values[1] < HORIZON_MIN_SPREAD * len(poses):
+        return None  # all look the same way: the x axes do not span a plane
+    up = vectors[:, 0]
+    camera_up = -poses[:, :3, 1].sum(axis=0)
+    return up if up @ camera_up >= 0 else -up
+
+
+def rotation_to_z(up: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation taking unit `up` (3,) to +Z."""
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    axis = np.cross(up, [0.0, 0.0, 1.0])
+    sin, cos = float(np.linalg.norm(axis)), float(up[2])
+    if sin < 1e-12:
+        return np.eye(3) if cos > 0 else np.diag([1.0, -1.0, -1.0])
+    k = axis / sin
+    skew = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + sin * skew + (1.0 - cos) * skew @ skew
+
+
+def level_sharpness(centroids: np.ndarray, areas: np.ndarray, normals: np.ndarray, up: np.ndarray) -> float:
+    """How level the surface lies if `up` (3,) unit is up: of the faces facing up or down along it
+    (centroids, normals (F, 3), areas (F,)), the sum of squares of their area histogram of height over the
+    square of their area (1 when all lie at one height; a tilted floor spreads over many bins)."""
+    flat = np.abs(normals @ up) > HORIZONTAL_COS
+    if not flat.any():
+        return 0.0
+    height = centroids[flat] @ up
+    bins = np.floor((height - height.min()) / HISTOGRAM_BIN).astype(np.int64)
+    histogram = np.bincount(bins, areas[flat])
+    return float(np.sum(histogram ** 2) / max(float(areas[flat].sum()) ** 2, 1e-12))
+
+
+def room_up(camera_poses: Optional[np.ndarray], centroids: np.ndarray, areas: np.ndarray,
+            normals: np.ndarray) -> tuple[np.ndarray, dict]:
+    """(up (3,) unit, info) the direction the planes are found along: world Z, or the cameras' horizon
+    (`camera_horizon_up`) when it is 1 to MAX_TILT_DEG from Z and the surface (faces: centroids, normals
+    (F, 3), areas (F,)) lies more level along it (`level_sharpness`). An SfM world is levelled by its
+    floor, which knows up better than the horizon of cameras held with a few degrees of roll (the demo
+    room's horizon is 3.8 deg off); a metric capture's own frame may be far off (SUN3D's: 19 deg)."""
+    z = np.array([0.0, 0.0, 1.0])
+    up = camera_horizon_up(camera_poses) if camera_poses is not None and len(camera_poses) else None
+    if up is None:
+        return z, {"up_source": "world Z (no camera horizon)", "tilt_deg": 0.0}
+    tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    info = {"horizon_tilt_deg": round(tilt, 2)}
+    if tilt < MIN_TILT_DEG or tilt > MAX_TILT_DEG:
+        return z, {"up_source": "world Z", **info, "tilt_deg": 0.0}
+    sharp_z, sharp_up = (level_sharpness(centroids, areas, normals, d) for d in (z, up))
+    info.update({"level_sharpness_z": round(sharp_z, 4), "level_sharpness_horizon": round(sharp_up, 4)})
+    if sharp_up <= sharp_z:
+        return z, {"up_source": "world Z", **info, "tilt_deg": 0.0}
+    return up, {"up_source": "camera horizon", **info, "tilt_deg": round(tilt, 2), "up": [round(float(x), 4) for x in up]}
+
+
 def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centres: np.ndarray,
-                           min_area: float = MIN_PLANE_AREA) -> tuple[list[StructuralPlane], dict]:
-    """Floor, ceiling and walls of a room mesh (vertices (V, 3) world metres Z up, faces (F, 3) wound
-    toward free space) seen from cameras at `camera_centres` (C, 3).
+                           min_area: float = MIN_PLANE_AREA, up: Optional[np.ndarray] = None,
+                           ) -> tuple[list[StructuralPlane], dict]:
+    """Floor, ceiling and walls of a room mesh (vertices (V, 3) world metres, faces (F, 3) wound toward
+    free space) seen from cameras at `camera_centres` (C, 3). up: the room's up (3,) unit in the world
+    (None: world Z); the planes are found in a frame where it is +Z and returned in the world.
 
     Returns (planes, info): planes floor first, then ceiling, then walls; info the Manhattan heading
-    (degrees) and whether it holds."""
+    (degrees, in the up-aligned frame) and whether it holds."""
+    if up is not None and float(np.asarray(up, np.float64)[2]) < 1.0 - 1e-9:
+        rotation = rotation_to_z(up)
+        planes, info = find_structural_planes(np.asarray(vertices, np.float64) @ rotation.T, faces,
+                                              np.asarray(camera_centres, np.float64).reshape(-1, 3) @ rotation.T,
+                                              min_area)
+        # n . (R x) = (R^T n) . x: the offset stays, normal and axes turn back.
+        return [StructuralPlane(p.kind, p.normal @ rotation, p.offset, p.area, p.axes @ rotation) for p in planes], info
     centroids, areas, normals = face_geometry(vertices, faces)
     cameras = np.asarray(camera_centres, np.float64).reshape(-1, 3)
     low, high = (float(cameras[:, 2].min()), float(cameras[:, 2].max())) if len(cameras) else (np.inf, -np.inf)
@@ -234,6 +323,12 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
     # Where the walls stand says the room's frame better than how crumpled stereo surface faces.
     heading, sharpness = position_heading(centroids, areas, normals)
     manhattan = sharpness >= MANHATTAN_SHARPNESS
+    if not manhattan and sharpness >= MANHATTAN_AGREEING_SHARPNESS:
+        # Two weak signals that agree: where the sideways surface lies and which way it faces (the
+        # SUN3D room, levelled: sharpness 1.36 and 40 % of the area within tolerance, 1 deg apart).
+        by_normals, share = manhattan_heading(wall_normals, areas[vertical])
+        apart = abs(np.mod(by_normals - heading + np.pi / 4, np.pi / 2) - np.pi / 4)
+        manhattan = share >= MANHATTAN_AGREEING_SHARE and apart <= np.radians(MANHATTAN_AGREEING_DEG)
     if manhattan:
         heading = _heading_from_positions(centroids, areas, normals, vertical, _directions(heading), heading)
         directions = _directions(heading)
@@ -246,8 +341,13 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
     planes: list[StructuralPlane] = []
 
     up = normals[:, 2] > HORIZONTAL_COS
+    # The floor bounds the room from below: little surface lies below it. Stereo's depth error puts
+    # some there (the fast sweep on SUN3D's carpet: 2.1 m^2 of crumpled surface below a 1.4 m^2 floor),
+    # but not facing up as a lower floor would; a table top has the floor below it.
     floor_peaks = [p for p in _histogram_peaks(centroids[up, 2], areas[up], min_area)
-                   if p[0] < low - 0.3 and areas[centroids[:, 2] < p[0] - BEHIND_MARGIN].sum() <= MAX_BEHIND_SHARE * p[1]]
+                   if p[0] < low - 0.3
+                   and areas[centroids[:, 2] < p[0] - BEHIND_MARGIN].sum() <= MAX_BELOW_FLOOR_SHARE * p[1]
+                   and areas[up & (centroids[:, 2] < p[0] - BEHIND_MARGIN)].sum() <= MAX_UP_BELOW_FLOOR_SHARE * p[1]]
     if floor_peaks:
         z, weight = min(floor_peaks)
         offset = _refine_offset(centroids[up, 2], areas[up], z)

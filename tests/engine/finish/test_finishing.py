@@ -11,7 +11,7 @@ import pytest
 from engine.finish.finishing import finish_mesh
 from engine.finish.free_space import PlainDepthView, view_votes
 from engine.finish.modes import FINISH_CLEAN, FINISH_OFF, FINISH_ROOM
-from engine.finish.planes import CEILING, FLOOR, WALL, find_structural_planes
+from engine.finish.planes import CEILING, FLOOR, WALL, camera_horizon_up, face_geometry, find_structural_planes, room_up
 from engine.geometry.depth_render import render_depth
 from engine.mesh_io import Mesh
 from engine.observation import ADDED
@@ -123,3 +123,79 @@ def test_without_views_no_piece_is_judged_and_nothing_is_added(scene):
     assert _faces_near(out, (1.7, 1.0, 1.1), 0.12).any()  # the floater: nothing says it is in free space
     assert not (out.attributes[ADDED] > 0).any()
     assert len(out.faces) > 0.5 * len(mesh.faces)
+
+
+# A metric capture's own frame need not be level (the SUN3D study room's is 19 deg off its floor, and
+# its cameras' mean up is its Z): the same box room, turned 19 deg about a horizontal axis.
+TILT = np.radians(19.0)
+TILT_AXIS = np.array([0.9, 0.4, 0.0]) / np.linalg.norm([0.9, 0.4, 0.0])
+
+
+def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
+    skew = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
+    return np.eye(3) + np.sin(angle) * skew + (1.0 - np.cos(angle)) * skew @ skew
+
+
+def _turned(scene, rotation):
+    """The scene in a world turned by `rotation` (3, 3): mesh and cameras move, the depth maps (in their
+    cameras) are the same."""
+    mesh, views, _ = scene
+    turn = np.eye(4)
+    turn[:3, :3] = rotation
+    moved = [PlainDepthView(v.depth, v.K, turn @ v.pose) for v in views]
+    vertices = (np.asarray(mesh.vertices, np.float64) @ rotation.T).astype(np.float32)
+    return Mesh(vertices, mesh.faces), moved, np.stack([v.pose[:3, 3] for v in moved])
+
+
+def test_camera_horizon_is_up_however_the_cameras_pitch():
+    _, poses = cameras()  # looking 17 deg down: their mean up leans 17 deg back
+    assert camera_horizon_up(poses) @ [0.0, 0.0, 1.0] > np.cos(np.radians(0.1))
+    rotation = _rotation(TILT_AXIS, TILT)
+    turned = poses.copy()
+    turned[:, :3, :] = rotation @ poses[:, :3, :]
+    assert camera_horizon_up(turned) @ (rotation @ [0.0, 0.0, 1.0]) > np.cos(np.radians(0.1))
+    assert camera_horizon_up(poses[:1]) is None  # one camera: no plane of x axes
+    assert camera_horizon_up(np.repeat(poses[:1], 5, axis=0)) is None  # all facing one way: none either
+
+
+def test_tilted_room_is_found_and_finished_as_the_level_one(scene):
+    rotation = _rotation(TILT_AXIS, TILT)
+    mesh, views, centres = _turned(scene, rotation)
+    true_up = rotation @ [0.0, 0.0, 1.0]
+    result = finish_mesh(mesh, views, centres, 0.04, FINISH_ROOM)
+    assert result.stats["up_source"] == "camera horizon"
+    assert abs(result.stats["tilt_deg"] - 19.0) < 0.5
+    kinds = sorted(p.kind for p in result.planes)
+    assert kinds == sorted([FLOOR, CEILING, WALL, WALL, WALL, WALL])
+    floor = next(p for p in result.planes if p.kind == FLOOR)
+    ceiling = next(p for p in result.planes if p.kind == CEILING)
+    assert floor.normal @ true_up > np.cos(np.radians(1.0)) and ceiling.normal @ true_up < -np.cos(np.radians(1.0))
+    assert abs(floor.offset) < 0.02 and abs(-ceiling.offset - ROOM[2]) < 0.02
+    for wall in (p for p in result.planes if p.kind == WALL):
+        level = rotation.T @ wall.normal  # the box's own axes in the level room
+        assert np.abs(level).max() > np.cos(np.radians(1.0))
+    # The hole closes and the door stays open as in the level room.
+    out = result.mesh
+    face_added = out.attributes[ADDED][out.faces].min(axis=1) > 0.5
+    at_hole = _faces_near(out, rotation @ [ROOM[0], (HOLE[0] + HOLE[1]) / 2, (HOLE[2] + HOLE[3]) / 2], 0.15)
+    assert at_hole.any() and face_added[at_hole].all()
+    assert not _faces_near(out, rotation @ [(DOOR[0] + DOOR[1]) / 2, ROOM[1], 1.0], 0.25).any()
+    level = finish_mesh(*scene[:2], scene[2], 0.04, FINISH_ROOM)
+    assert abs(len(out.faces) - len(level.mesh.faces)) < 0.03 * len(level.mesh.faces)
+
+
+def test_level_world_is_kept_when_the_cameras_roll(scene):
+    """Cameras held with a few degrees of roll tilt their horizon (the demo room's: 3.8 deg); an SfM world
+    levelled by its floor is kept, because its surface lies more level along world Z."""
+    mesh, views, centres = scene
+    rolled = []
+    for k, view in enumerate(views):  # rolled about its forward axis, up to 5 deg, with the heading (as the demo's)
+        pose = view.pose.copy()
+        roll = _rotation(pose[:3, 2], np.radians(5.0) * np.cos(2 * np.pi * k / len(views)))
+        pose[:3, :3] = roll @ pose[:3, :3]
+        rolled.append(pose)
+    horizon = camera_horizon_up(np.stack(rolled))
+    assert horizon[2] < np.cos(np.radians(3.0))  # the horizon is off
+    centroids, areas, normals = face_geometry(mesh.vertices, mesh.faces)
+    up, info = room_up(np.stack(rolled), centroids, areas, normals)
+    assert info["up_source"] == "world Z" and up[2] == 1.0
