@@ -97,7 +97,7 @@ def score(cached: Path, truth: Path, modes: list[str], save: Path | None, truth_
         mesh = moved_mesh(Mesh(result.mesh.vertices, result.mesh.faces), to_truth)
         if save is not None:
             save.mkdir(parents=True, exist_ok=True)
-            write_ply(save / f"{mode}.ply", mesh.vertices, mesh.faces)
+            write_ply(save / f"{mode}.ply", mesh.vertices, mesh.faces, attributes=result.mesh.attributes or None)
         rows.append(score_mesh(mode, mesh, gt, volume))
     for line in fscore_table(rows):
         print(line)

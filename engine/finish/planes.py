@@ -52,6 +52,7 @@ MAX_UP_BELOW_FLOOR_SHARE = 0.5  # up-facing surface below a floor (a lower floor
 # MAX_TILT_DEG the cameras were not held level, or the world is not Z up at all.
 MIN_TILT_DEG = 1.0
 MAX_TILT_DEG = 30.0
+FLOOR_NORMAL_AGREE_DEG = 10.0  # a floor face's normal "agrees" with the floor's mean normal within this
 HORIZON_MIN_SPREAD = 0.03  # mean sin^2 of the x axes' spread about their mean: under ~10 deg of headings
 
 
@@ -295,6 +296,20 @@ def room_up(camera_poses: Optional[np.ndarray], centroids: np.ndarray, areas: np
     if sharp_up <= sharp_z:
         return z, {"up_source": "world Z", **info, "tilt_deg": 0.0}
     return up, {"up_source": "camera horizon", **info, "tilt_deg": round(tilt, 2), "up": [round(float(x), 4) for x in up]}
+
+
+def floor_up(centroids: np.ndarray, areas: np.ndarray, normals: np.ndarray, floor: StructuralPlane) -> tuple[np.ndarray, float]:
+    """(up (3,) unit, agreement) of the floor: the area-weighted mean normal of the up-facing faces
+    (centroids, normals (F, 3), areas (F,)) within PEAK_WINDOW of `floor`, and the share of their area
+    within FLOOR_NORMAL_AGREE_DEG of that mean (how far their normals can be trusted)."""
+    on = (normals @ floor.normal > HORIZONTAL_COS) & (np.abs(floor.distance(centroids)) <= PEAK_WINDOW)
+    mean = (normals[on] * areas[on, None]).sum(axis=0)
+    length = float(np.linalg.norm(mean))
+    if length <= 0:
+        return floor.normal.copy(), 0.0
+    mean = mean / length
+    agree = normals[on] @ mean > np.cos(np.radians(FLOOR_NORMAL_AGREE_DEG))
+    return mean, float(areas[on][agree].sum() / areas[on].sum())
 
 
 def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centres: np.ndarray,

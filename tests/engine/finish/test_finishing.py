@@ -199,3 +199,25 @@ def test_level_world_is_kept_when_the_cameras_roll(scene):
     centroids, areas, normals = face_geometry(mesh.vertices, mesh.faces)
     up, info = room_up(np.stack(rolled), centroids, areas, normals)
     assert info["up_source"] == "world Z" and up[2] == 1.0
+
+
+def test_tilted_room_with_rolled_cameras_is_levelled_by_its_floor(scene):
+    """The horizon of cameras held with some roll is a few degrees off; where the floor's normals agree
+    (here: 3 mm of noise on a flat floor) the floor's mean normal levels the planes instead."""
+    rotation = _rotation(TILT_AXIS, TILT)
+    vertices, faces = merge(room_parts(with_hole=True))
+    smooth = vertices + np.random.default_rng(1).normal(0, 0.003, vertices.shape)
+    mesh, views, centres = _turned((Mesh(smooth.astype(np.float32), faces.astype(np.int32)), *scene[1:]), rotation)
+    rolled = []
+    for k, view in enumerate(views):
+        pose = view.pose.copy()
+        roll = _rotation(pose[:3, 2], np.radians(3.0) * np.cos(2 * np.pi * k / len(views)))
+        pose[:3, :3] = roll @ pose[:3, :3]
+        rolled.append(PlainDepthView(view.depth, view.K, pose))  # the depth maps are the same to within the roll
+    true_up = rotation @ [0.0, 0.0, 1.0]
+    assert camera_horizon_up(np.stack([v.pose for v in rolled])) @ true_up < np.cos(np.radians(2.0))
+    result = finish_mesh(mesh, views, centres, 0.04, FINISH_ROOM, camera_poses=np.stack([v.pose for v in rolled]))
+    assert result.stats["up_source"] == "camera horizon, then the floor"
+    floor = next(p for p in result.planes if p.kind == FLOOR)
+    assert floor.normal @ true_up > np.cos(np.radians(0.5))
+    assert sum(p.kind == WALL for p in result.planes) == 4
