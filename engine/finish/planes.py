@@ -46,6 +46,8 @@ BEHIND_MARGIN = 0.2  # m behind a candidate wall before surface counts as "behin
 # Surface behind a wall across its span, as a share of the wall's own area: a cabinet front has more
 # wall behind it than its own area; a wall has at most what its windows and doors show of outside.
 MAX_BEHIND_SHARE = 1.0
+OPENING_CELL = 0.1  # m: the grid a candidate wall's own surface is rasterised on to find its openings
+OPENING_CAMERAS = 24  # cameras (evenly spaced) whose sight lines test where surface behind a wall was seen through
 MAX_BELOW_FLOOR_SHARE = 3.0  # surface below a floor, as a share of its area (stereo's error puts some there)
 MAX_UP_BELOW_FLOOR_SHARE = 0.5  # up-facing surface below a floor (a lower floor: the candidate is a table top)
 # The room's up from the cameras' horizon (`room_up`): considered from MIN_TILT_DEG off world Z; beyond
@@ -312,6 +314,40 @@ def floor_up(centroids: np.ndarray, areas: np.ndarray, normals: np.ndarray, floo
     return mean, float(areas[on][agree].sum() / areas[on].sum())
 
 
+def seen_through_openings(wall_uz: np.ndarray, behind: np.ndarray, cameras: np.ndarray, direction: np.ndarray,
+                          offset: float, u_axis: np.ndarray) -> np.ndarray:
+    """(B,) bool: which of the points `behind` (B, 3) a camera could have seen through an opening of a
+    candidate wall: the sight line from one of `cameras` (C, 3) in front of the wall (direction . x >
+    offset) crosses the wall's plane where the wall has no surface of its own but has some above, as
+    in a window or a door under its lintel. wall_uz (N, 2): the wall's own surface as (along u_axis,
+    height) points. Surface seen above a cabinet front (nothing of the candidate above the crossing)
+    stays evidence that the candidate is not a wall."""
+    through = np.zeros(len(behind), bool)
+    if len(behind) == 0 or len(wall_uz) == 0 or len(cameras) == 0:
+        return through
+    origin = wall_uz.min(axis=0)
+    cells = np.floor((wall_uz - origin) / OPENING_CELL).astype(np.int64)
+    shape = cells.max(axis=0) + 1
+    occupied = np.zeros(shape, bool)
+    occupied[cells[:, 0], cells[:, 1]] = True
+    # Per column, the highest row with wall surface: an opening lies below it.
+    rows = np.arange(shape[1])
+    top = np.where(occupied.any(axis=1), np.max(np.where(occupied, rows[None, :], -1), axis=1), -1)
+    in_front = cameras[cameras @ direction > offset + 1e-3]
+    if len(in_front) > OPENING_CAMERAS:
+        in_front = in_front[np.round(np.linspace(0, len(in_front) - 1, OPENING_CAMERAS)).astype(np.int64)]
+    behind_depth = behind @ direction
+    for camera in in_front:
+        camera_depth = float(camera @ direction)
+        t = (camera_depth - offset) / np.maximum(camera_depth - behind_depth, 1e-9)  # behind: depth < offset
+        crossing = camera + t[:, None] * (behind - camera)
+        cell = np.floor((np.stack([crossing @ u_axis, crossing[:, 2]], axis=1) - origin) / OPENING_CELL).astype(np.int64)
+        inside = (cell[:, 0] >= 0) & (cell[:, 0] < shape[0]) & (cell[:, 1] >= 0) & (cell[:, 1] < shape[1])
+        col, row = np.where(inside, cell[:, 0], 0), np.where(inside, cell[:, 1], 0)
+        through |= inside & ~occupied[col, row] & (top[col] > row)
+    return through
+
+
 def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centres: np.ndarray,
                            min_area: float = MIN_PLANE_AREA, up: Optional[np.ndarray] = None,
                            ) -> tuple[list[StructuralPlane], dict]:
@@ -401,7 +437,11 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
             behind = ((centroids @ direction < offset - BEHIND_MARGIN) & (all_along >= span[0]) & (all_along <= span[1])
                       & (centroids[:, 2] >= z_lo) & (centroids[:, 2] <= z_hi))
             if areas[behind].sum() > MAX_BEHIND_SHARE * weight:
-                continue  # furniture, or an inner wall with room behind it
+                # What a window or a door shows of outside is no evidence against the wall it is in.
+                wall_uz = np.stack([along, heights], axis=1)
+                through = seen_through_openings(wall_uz, centroids[behind], cameras, direction, offset, u_axis)
+                if areas[behind][~through].sum() > MAX_BEHIND_SHARE * weight:
+                    continue  # furniture, or an inner wall with room behind it
             if len(cameras) and np.median(cameras @ direction) < offset:
                 continue  # the cameras are behind it
             if any(p.kind == WALL and p.normal @ direction > 0.99 and abs(p.offset - offset) < 2 * PEAK_WINDOW for p in planes):

@@ -1,0 +1,61 @@
+"""Which candidates are walls: what a wall's windows show of outside does not count against it, what
+is seen over a partition does."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from engine.finish.planes import WALL, face_geometry, find_structural_planes, seen_through_openings
+from fixtures_box_room import ROOM, cameras, merge, rectangle, room_parts
+
+WINDOWS = ((0.3, 1.3), (1.7, 2.7))  # along y in the x = 4 wall
+SILL, LINTEL = 0.8, 2.0  # window heights
+
+
+def _in_window(s: float, t: float) -> bool:
+    return SILL <= t < LINTEL and any(a <= s < b for a, b in WINDOWS)
+
+
+def _room_with_windows_and_backdrop():
+    """The box room with its x = 4 wall holding two 1 x 1.2 m windows, and outside them a backdrop 2 m
+    behind the wall (a facade across the street), larger than the wall itself."""
+    X, Y, Z = ROOM
+    parts = [p for p in room_parts(with_hole=False)]
+    parts[5] = rectangle((X, 0, 0), (0, 1, 0), (0, 0, 1), Y, Z, (-1, 0, 0), skip=_in_window)
+    parts.append(rectangle((X + 2.0, -3.0, 0.0), (0, 1, 0), (0, 0, 1), 9.0, Z, (-1, 0, 0), step=0.05))
+    return merge(parts)
+
+
+def test_a_wall_with_windows_is_found_behind_what_they_show():
+    vertices, faces = _room_with_windows_and_backdrop()
+    _, poses = cameras()
+    planes, _ = find_structural_planes(vertices, faces, poses[:, :3, 3])
+    walls = [p for p in planes if p.kind == WALL and p.normal[0] < -0.99]
+    offsets = sorted(round(-p.offset, 2) for p in walls)
+    assert ROOM[0] in offsets, f"the window wall at x = 4 must be found, got walls at x = {offsets}"
+
+
+def test_what_the_windows_show_is_seen_through_them_and_the_wall_itself_hides_the_rest():
+    X, Y, Z = ROOM
+    _, poses = cameras()
+    direction = np.array([-1.0, 0.0, 0.0])  # the wall's normal, into the room
+    u_axis = np.cross([0.0, 0.0, 1.0], direction)
+    wall, _, _ = face_geometry(*rectangle((X, 0, 0), (0, 1, 0), (0, 0, 1), Y, Z, (-1, 0, 0), skip=_in_window))
+    wall_uz = np.stack([wall @ u_axis, wall[:, 2]], axis=1)  # the wall's own faces: along it, height
+    # Behind the wall, 2 m out: straight out through the middle of a window, and straight out from the
+    # wall's middle between the windows (no camera's sight line reaches it through an opening).
+    behind = np.array([[X + 2.0, 0.8, 1.4], [X + 2.0, 1.5, 1.4]])
+    through = seen_through_openings(wall_uz, behind, poses[:, :3, 3], direction, -X, u_axis)
+    assert through.tolist() == [True, False]
+
+
+def test_a_partition_with_the_room_seen_over_it_is_not_a_wall():
+    """A 1.5 m partition across the room at x = 3: the far wall shows over it, where the partition has
+    no surface above the sight lines, so it counts against the partition."""
+    X, Y, Z = ROOM
+    parts = room_parts(with_hole=False) + [rectangle((3.0, 0, 0), (0, 1, 0), (0, 0, 1), Y, 1.5, (-1, 0, 0))]
+    vertices, faces = merge(parts)
+    _, poses = cameras()
+    planes, _ = find_structural_planes(vertices, faces, poses[:, :3, 3])
+    offsets = sorted(round(-p.offset, 2) for p in planes if p.kind == WALL and p.normal[0] < -0.99)
+    assert offsets == [X], f"only the far wall is a wall, got walls at x = {offsets}"
