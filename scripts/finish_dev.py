@@ -98,7 +98,13 @@ def score(cached: Path, truth: Path, modes: list[str], save: Path | None, truth_
         if save is not None:
             save.mkdir(parents=True, exist_ok=True)
             write_ply(save / f"{mode}.ply", mesh.vertices, mesh.faces, attributes=result.mesh.attributes or None)
+            if truth_poses:  # also in the capture's own frame (the photos' poses), for capture-view pictures
+                own = moved_mesh(Mesh(result.mesh.vertices, result.mesh.faces), record["to_output"])
+                write_ply(save / f"{mode}.capture.ply", own.vertices, own.faces, attributes=result.mesh.attributes or None)
         rows.append(score_mesh(mode, mesh, gt, volume))
+    if save is not None and truth_poses:
+        own = moved_mesh(moved_mesh(gt, to_truth.inverse()), record["to_output"])
+        write_ply(save / "truth.capture.ply", own.vertices, own.faces)
     for line in fscore_table(rows):
         print(line)
     print(surface_table({r.name: r.surface for r in rows}))
@@ -115,7 +121,8 @@ def main() -> None:
     s.add_argument("cached", type=Path)
     s.add_argument("truth", type=Path, help="the room folder with mesh_gt.ply and its truth TSDF")
     s.add_argument("--modes", default="off,clean,room")
-    s.add_argument("--save", type=Path, help="write each mode's mesh (in the truth's frame) here")
+    s.add_argument("--save", type=Path, help="write each mode's mesh (in the truth's frame) here; with --truth-poses "
+                   "also MODE.capture.ply and truth.capture.ply in the capture's frame")
     s.add_argument("--truth-poses", action="store_true",
                    help="align by the camera centres to the truth folder's poses (SfM-posed captures)")
     args = parser.parse_args()
