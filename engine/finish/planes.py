@@ -55,6 +55,10 @@ MAX_UP_BELOW_FLOOR_SHARE = 0.5  # up-facing surface below a floor (a lower floor
 MIN_TILT_DEG = 1.0
 MAX_TILT_DEG = 30.0
 FLOOR_NORMAL_AGREE_DEG = 10.0  # a floor face's normal "agrees" with the floor's mean normal within this
+# The horizon is taken only where the surface lies this much more level along it than along world Z (SUN3D:
+# 3.7 x with PatchMatch, 2.2 x with the fast sweep; a level synthetic room whose noisy poses tilt the horizon
+# 3 deg: 1.0 x, a tie its crumpled surface cannot break).
+LEVEL_SHARPER = 1.5
 HORIZON_MIN_SPREAD = 0.03  # mean sin^2 of the x axes' spread about their mean: under ~10 deg of headings
 
 
@@ -282,7 +286,7 @@ def room_up(camera_poses: Optional[np.ndarray], centroids: np.ndarray, areas: np
             normals: np.ndarray) -> tuple[np.ndarray, dict]:
     """(up (3,) unit, info) the direction the planes are found along: world Z, or the cameras' horizon
     (`camera_horizon_up`) when it is 1 to MAX_TILT_DEG from Z and the surface (faces: centroids, normals
-    (F, 3), areas (F,)) lies more level along it (`level_sharpness`). An SfM world is levelled by its
+    (F, 3), areas (F,)) lies clearly more level along it (`level_sharpness`, LEVEL_SHARPER times Z's). An SfM world is levelled by its
     floor, which knows up better than the horizon of cameras held with a few degrees of roll (the demo
     room's horizon is 3.8 deg off); a metric capture's own frame may be far off (SUN3D's: 19 deg)."""
     z = np.array([0.0, 0.0, 1.0])
@@ -295,7 +299,7 @@ def room_up(camera_poses: Optional[np.ndarray], centroids: np.ndarray, areas: np
         return z, {"up_source": "world Z", **info, "tilt_deg": 0.0}
     sharp_z, sharp_up = (level_sharpness(centroids, areas, normals, d) for d in (z, up))
     info.update({"level_sharpness_z": round(sharp_z, 4), "level_sharpness_horizon": round(sharp_up, 4)})
-    if sharp_up <= sharp_z:
+    if sharp_up < LEVEL_SHARPER * sharp_z:
         return z, {"up_source": "world Z", **info, "tilt_deg": 0.0}
     return up, {"up_source": "camera horizon", **info, "tilt_deg": round(tilt, 2), "up": [round(float(x), 4) for x in up]}
 

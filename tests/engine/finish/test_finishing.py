@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.finish.finishing import finish_mesh
+from engine.finish.finishing import finish_mesh, typical_support
 from engine.finish.free_space import PlainDepthView, view_votes
 from engine.finish.modes import FINISH_CLEAN, FINISH_OFF, FINISH_ROOM
 from engine.finish.planes import CEILING, FLOOR, WALL, camera_horizon_up, face_geometry, find_structural_planes, room_up
@@ -221,3 +221,12 @@ def test_tilted_room_with_rolled_cameras_is_levelled_by_its_floor(scene):
     floor = next(p for p in result.planes if p.kind == FLOOR)
     assert floor.normal @ true_up > np.cos(np.radians(0.5))
     assert sum(p.kind == WALL for p in result.planes) == 4
+
+
+def test_pieces_are_asked_no_more_views_than_the_typical_surface_gets():
+    """Maps that disagree (poses off) see most surface from 1 view: a piece is then asked for 1, not for
+    the 2 that 36 maps would ask (a third of a realistic room's surface went, as good as what stayed)."""
+    faces = np.array([[0, 1, 2], [1, 2, 3], [4, 5, 6]])
+    assert typical_support(np.array([1, 1, 1, 2, 1, 1, 5, 9]), faces) == 1  # vertex 7 unused
+    assert typical_support(np.array([0, 0, 0, 0, 0, 0, 0]), faces) == 1
+    assert typical_support(np.array([4, 3, 5, 4, 6, 2, 4]), faces) == 4
