@@ -46,7 +46,7 @@ import numpy as np
 from ..capture.model import Capture
 from ..errors import Cancelled, VortxError
 from ..jobs import CancelToken, ProgressCallback, check
-from ..stereo.options import StereoOptions
+from ..stereo.options import MATCHER_FAST, StereoOptions
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .floor import GRAVITY_MIN_INLIERS, FloorPlane, find_floor_plane
 
@@ -237,7 +237,7 @@ def _dense_points(
         return np.zeros((0, 3)), "dense depth skipped: the photos have different sizes"
     # The world is already roughly metric (the camera-height guess), so the depth limits in metres
     # hold with a wide margin; the sparse points narrow each view's range.
-    options = StereoOptions(long_side=DENSE_LONG_SIDE, planes=32, refine_planes=4, min_depth=0.05, max_depth=40.0,
+    options = StereoOptions(matcher=MATCHER_FAST, long_side=DENSE_LONG_SIDE, planes=32, refine_planes=4, min_depth=0.05, max_depth=40.0,
                             max_references=DENSE_REFERENCES, consistency_views=1)
     references = stereo_references(len(posed), DENSE_REFERENCES).tolist()
     try:

@@ -91,7 +91,7 @@ def setting(default: Any, help: str, expose: tuple[str, ...], *, methods: tuple[
 @dataclass
 class ReconSettings:
     method: str = setting(
-        "stereo", "how the room is reconstructed: 'stereo' = plane-sweep stereo depth fused into a TSDF (no network, "
+        "stereo", "how the room is reconstructed: 'stereo' = multi-view stereo depth fused into a TSDF (no network, "
         "the default: it beats the shipped weights); 'vortx' = the VoRTX network with the chosen weights",
         (CLI, BLENDER), choices=METHODS, label="Method")
     weights: Optional[str] = setting(

@@ -18,7 +18,7 @@ from fixtures_gltf import assert_valid_gltf  # the Khronos glTF-Validator on eve
 from fixtures_texture import read_glb  # an independent reader: the writer is not checked with its own code
 
 DEMO = Path(__file__).resolve().parents[2] / "samples" / "demo_room"
-FAST = ["--voxel-size", "0.08", "--stereo-image-size", "128", "--stereo-views", "10", "--stereo-planes", "40",
+FAST = ["--stereo", "fast", "--voxel-size", "0.08", "--stereo-image-size", "128", "--stereo-views", "10", "--stereo-planes", "40",
         "--colour-views", "6", "--texture-size", "512", "--face-budget", "3000", "--quiet"]
 
 

@@ -25,7 +25,7 @@ from fixtures_capture import rotation_about, write_transforms_json
 
 DEMO = Path(__file__).resolve().parents[3] / "samples" / "demo_room"
 # Coarse, quick stereo (~50 s of CPU per run): the test compares two frames of one result, not its quality.
-FAST = ["--voxel-size", "0.08", "--stereo-image-size", "96", "--stereo-views", "8", "--stereo-planes", "32",
+FAST = ["--stereo", "fast", "--voxel-size", "0.08", "--stereo-image-size", "96", "--stereo-views", "8", "--stereo-planes", "32",
         "--colour-views", "1", "--quiet"]
 # The capture's frame as a NeRF tool leaves it: tilted, shifted, in units of 1.25 m.
 KNOWN = Similarity(rotation_about([1.0, 2.0, 0.5], 70.0), np.array([2.5, -1.0, 4.0]), 0.8)

@@ -15,7 +15,7 @@ from engine.geometry.cameras import look_at
 from engine.geometry.depth_render import render_depth
 from engine.mesh_io import read_ply
 from engine.stereo.depth_maps import estimate_depth_maps
-from engine.stereo.options import StereoOptions
+from engine.stereo.options import MATCHER_FAST, StereoOptions
 from engine.stereo.source_views import select_sources
 from engine.stereo.sweep import parabola_offset, sweep_depth
 
@@ -82,7 +82,7 @@ def test_demo_room_depth_maps_against_the_true_mesh() -> None:
     frames = [Frame(p, 320, 240, K, np.loadtxt(DEMO / "truth" / "pose" / f"{p.stem}.txt").reshape(4, 4)) for p in paths]
     poses = np.stack([f.pose for f in frames])
     torch.manual_seed(0)
-    maps = estimate_depth_maps(frames, poses, [0, 12, 24], StereoOptions())
+    maps = estimate_depth_maps(frames, poses, [0, 12, 24], StereoOptions(matcher=MATCHER_FAST))
     truth = read_ply(DEMO / "truth" / "mesh_gt.ply")
     rel, complete = [], []
     for m in maps:

@@ -121,8 +121,8 @@ def test_the_stereo_method_writes_the_layer_into_its_ply(tmp_path) -> None:
     make_synthetic_capture(tmp_path / "room", room_size=(3.0, 3.0, 2.5), frames=16, image_size=(160, 120),
                            radius=0.5, outward_deg=45.0)
     out = tmp_path / "room.ply"
-    assert main(["reconstruct", str(tmp_path / "room"), "--out", str(out), "--method", "stereo", "--voxel-size", "0.08",
-                 "--stereo-views", "8", "--stereo-planes", "32", "--colour-views", "2", "--quiet"]) == 0
+    assert main(["reconstruct", str(tmp_path / "room"), "--out", str(out), "--method", "stereo", "--stereo", "fast",
+                 "--voxel-size", "0.08", "--stereo-views", "8", "--stereo-planes", "32", "--colour-views", "2", "--quiet"]) == 0
     mesh = read_ply(out)
     # The finishing stage (Room by default) adds its own mark of the faces it added.
     assert set(mesh.attributes) == {OBSERVATIONS, STEREO_CONFIDENCE, COMPLETED, ADDED}
