@@ -34,9 +34,6 @@ HEADING_TOLERANCE_DEG = 20.0  # a wall face's heading within this of its wall's 
 MANHATTAN_TOLERANCE_DEG = 15.0
 MANHATTAN_SHARE = 0.5  # of the vertical area within tolerance of the Manhattan directions: the frame holds
 MANHATTAN_SHARPNESS = 1.5  # the walls' position histograms this much sharper square to the frame: it holds
-MANHATTAN_AGREEING_SHARPNESS = 1.2  # a weaker position sharpness holds when the normals agree on the heading:
-MANHATTAN_AGREEING_SHARE = 0.3  # this share of the vertical area within tolerance of their frame,
-MANHATTAN_AGREEING_DEG = 3.0  # whose heading is within this of the positions' one
 MANHATTAN_FACING_DEG = 45.0  # in a Manhattan frame a wall's faces face within this of its normal (crumpled stereo)
 HISTOGRAM_BIN = 0.02  # m
 PEAK_WINDOW = 0.06  # m either side of a peak: the area that supports it
@@ -378,12 +375,6 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
     # Where the walls stand says the room's frame better than how crumpled stereo surface faces.
     heading, sharpness = position_heading(centroids, areas, normals)
     manhattan = sharpness >= MANHATTAN_SHARPNESS
-    if not manhattan and sharpness >= MANHATTAN_AGREEING_SHARPNESS:
-        # Two weak signals that agree: where the sideways surface lies and which way it faces (the
-        # SUN3D room, levelled: sharpness 1.36 and 40 % of the area within tolerance, 1 deg apart).
-        by_normals, share = manhattan_heading(wall_normals, areas[vertical])
-        apart = abs(np.mod(by_normals - heading + np.pi / 4, np.pi / 2) - np.pi / 4)
-        manhattan = share >= MANHATTAN_AGREEING_SHARE and apart <= np.radians(MANHATTAN_AGREEING_DEG)
     if manhattan:
         heading = _heading_from_positions(centroids, areas, normals, vertical, _directions(heading), heading)
         directions = _directions(heading)
