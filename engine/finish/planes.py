@@ -1,11 +1,14 @@
 """The room's structural planes (floor, ceiling, walls) found in a reconstructed surface.
 
 Gravity is known, so the search is split as indoor layout methods split it. Up is world Z, unless the
-cameras' horizon says the world is tilted (a metric capture's own frame is kept as it is, and the SUN3D
-room's is 19 deg off level): then the planes are found in a frame levelled by the horizon (`room_up`).
+cameras' horizon says the world is tilted and the surface agrees (a metric capture's own frame is kept
+as it is, and the SUN3D room's is 19 deg off level): then the planes are found in a frame levelled by
+the horizon (`room_up`), and the finishing levels it again by the floor's own normal where that is
+good (`floor_up`, engine/finish/finishing.py).
 - floor and ceiling: area-weighted histograms of the height of the faces that face up (floor) or
-  down (ceiling); the floor is the lowest strong peak below the cameras, the ceiling the highest
-  above them (a table top is a smaller, higher peak).
+  down (ceiling); the floor is the lowest strong peak below the cameras with little surface below it
+  (stereo's error may put crumpled surface there, but not a lower up-facing one), the ceiling the
+  highest above them (a table top is a smaller, higher peak).
 - walls: faces that face sideways vote with their normal's heading; the room's Manhattan frame is the
   heading (mod 90 deg) that most wall area agrees with. Where it holds (most vertical area within
   `MANHATTAN_TOLERANCE_DEG` of its four directions) those four directions are the walls' normals,
