@@ -35,9 +35,11 @@ pairs, one triangulation with the given poses and intrinsics (fixed); the parent
   K_per_image        [[3x3], ...] in pixels of the source images, one per image (PINHOLE)
   cam_from_world     [[3x4], ...] the given world-to-camera poses, OpenCV axes, one per image
   pairs              [[i, j], ...] image indices to match
-  loose_angle_deg    the triangulation accepts rays this far off (the given poses' error)
+  loose_angle_deg    the triangulation, and the filter of COLMAP's fixed-pose adjustment after it,
+                     accept rays this far off (the given poses' error); 0: COLMAP's defaults (2 deg, 4 px)
   features_from      null, or a database of an earlier job on the same photos (same names, same
-                     max_side) whose features and matches are reused
+                     max_side) whose features and matches are reused (and photos it lacks are extracted
+                     with the same SIFT settings, from its side file DATABASE_features.json)
 Its result: work_dir/result.json {"images": [{"name", "num_points3D"}], "mean_reprojection_error",
 "num_points3D", "scale": [sx, sy] (downscaled / source pixels), "database", "timings"} and
 work_dir/points.npz as for SfM plus the tracks (obs_image, obs_point, obs_uv; see `_write_tracks`).
@@ -337,10 +339,12 @@ def run_refine(job: dict) -> None:
     db_path = work / "database.db"
     if db_path.exists():
         db_path.unlink()
+    peak_threshold = None
     if job.get("features_from") and Path(job["features_from"]).is_file():
         # The pose check's features (same photos, same names and size): COLMAP skips the photos the
-        # database has, and the pairs it matched already.
+        # database has, and the pairs it matched already; the photos it lacks are extracted alike.
         shutil.copyfile(job["features_from"], db_path)
+        peak_threshold = _features_settings(Path(job["features_from"])).get("peak_threshold")
     timings: dict[str, float] = {}
     start = time.perf_counter()
     sizes, sx, sy = downscale_images(job, image_dir)
@@ -356,8 +360,20 @@ def run_refine(job: dict) -> None:
     with pycolmap.Database.open(str(db_path)) as db:
         have = {im.name for im in db.read_all_images() if db.exists_keypoints(im.image_id)}
     missing = [name for name in names if name not in have]
+    mode = (pycolmap.CameraMode.SINGLE if shared else pycolmap.CameraMode.PER_IMAGE, reader)
+    low_contrast = None
     if missing:
-        _extract(job, db_path, image_dir, missing, (pycolmap.CameraMode.SINGLE if shared else pycolmap.CameraMode.PER_IMAGE, reader))
+        _extract(job, db_path, image_dir, missing, mode, peak_threshold=peak_threshold)
+        typical = _median_keypoints(db_path)
+        if peak_threshold is None and typical < LOW_CONTRAST_KEYPOINTS:
+            # As for SfM: dim or plain-walled photos keep too few features at SIFT's default contrast
+            # threshold. Measured on a realistic rendered room at 320 x 240 (room_05001, tracker poses):
+            # median 222 -> 785 features per photo, 28 -> 30 of 40 frames refined.
+            db_path.unlink()
+            peak_threshold = LOW_CONTRAST_PEAK_THRESHOLD
+            _extract(job, db_path, image_dir, names, mode, peak_threshold=peak_threshold)
+            low_contrast = {"before": typical, "after": _median_keypoints(db_path)}
+    _features_path(db_path).write_text(json.dumps({"peak_threshold": peak_threshold}))
     timings["extract"] = time.perf_counter() - start
 
     start = time.perf_counter()
@@ -372,6 +388,7 @@ def run_refine(job: dict) -> None:
     timings["match"] = time.perf_counter() - start
     say("progress", "match", len(job["pairs"]), len(job["pairs"]))
     stats = database_stats(db_path)
+    stats["low_contrast"] = low_contrast
 
     start = time.perf_counter()
     say("stage", "triangulate", 1)
@@ -399,6 +416,18 @@ def run_refine(job: dict) -> None:
     _write_tracks(work, reconstruction, index_of, stats, timings, sx, sy)
 
 
+def _features_path(db_path: Path) -> Path:
+    """The side file saying how a refine job's database was extracted ({"peak_threshold": null | float})."""
+    return db_path.with_name(db_path.stem + "_features.json")
+
+
+def _features_settings(db_path: Path) -> dict:
+    try:
+        return json.loads(_features_path(db_path).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
 def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loose_angle_deg: float, focal: float):
     import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
@@ -409,6 +438,12 @@ def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loos
     pixels = max(4.0, focal * float(np.tan(np.radians(loose_angle_deg))))
     triangulation.merge_max_reproj_error = pixels
     triangulation.complete_max_reproj_error = pixels
+    # The fixed-pose bundle adjustment inside triangulate_points drops observations beyond the mapper's
+    # filter (4 px by default) after each round. Poses 1.5 deg off at a 280 px focal reproject a track
+    # of three or more views 5-10 px off, so at 4 px most such tracks were dropped before our own
+    # adjustment could turn the cameras (room_05001 at 320 x 240: 10 of 40 frames refined; with the
+    # filter at the same tolerance, 28).
+    options.mapper.filter_max_reproj_error = pixels
     out.mkdir(parents=True, exist_ok=True)
     return pycolmap.triangulate_points(reconstruction, db_path, image_dir, out, clear_points=True, options=options)
 

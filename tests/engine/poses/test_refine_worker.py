@@ -1,0 +1,52 @@
+"""The refine job's triangulation settings in the COLMAP worker (sfm_worker.py), without running COLMAP:
+poses a tracker gives (1-2 deg off) reproject tracks of three or more views 5-10 px off at a 280 px
+focal, so the whole triangulation, COLMAP's fixed-pose adjustment filter included, must tolerate that
+much, or the tracks that could correct the rotations are gone before our own adjustment sees them."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pycolmap = pytest.importorskip("pycolmap")
+
+from engine.poses import sfm_worker  # noqa: E402
+
+
+def _options_of_triangulation(monkeypatch, tmp_path: Path, loose_angle_deg: float, focal: float):
+    seen = {}
+
+    def fake(reconstruction, database, images, out, clear_points, options):
+        seen["options"] = options
+        return reconstruction
+
+    monkeypatch.setattr(pycolmap, "triangulate_points", fake)
+    sfm_worker._triangulate(pycolmap.Reconstruction(), tmp_path / "db", tmp_path, tmp_path / "out", loose_angle_deg, focal)
+    return seen["options"]
+
+
+def test_the_fixed_pose_adjustment_keeps_tracks_as_far_off_as_the_poses_may_be(monkeypatch, tmp_path):
+    options = _options_of_triangulation(monkeypatch, tmp_path, loose_angle_deg=3.0, focal=277.0)
+    pixels = 277.0 * np.tan(np.radians(3.0))  # 14.5 px: what 3 deg of rotation moves a point by
+    assert options.mapper.filter_max_reproj_error == pytest.approx(pixels)
+    assert options.triangulation.merge_max_reproj_error == pytest.approx(pixels)
+    assert options.triangulation.complete_max_reproj_error == pytest.approx(pixels)
+    assert options.triangulation.create_max_angle_error == pytest.approx(3.0)
+
+
+def test_a_tolerance_of_zero_is_colmaps_own(monkeypatch, tmp_path):
+    options = _options_of_triangulation(monkeypatch, tmp_path, loose_angle_deg=0.0, focal=277.0)
+    defaults = pycolmap.IncrementalPipelineOptions()
+    assert options.mapper.filter_max_reproj_error == defaults.mapper.filter_max_reproj_error == 4.0
+    assert options.triangulation.create_max_angle_error == defaults.triangulation.create_max_angle_error == 2.0
+
+
+def test_a_reused_database_says_how_its_features_were_extracted(tmp_path):
+    database = tmp_path / "database.db"
+    assert sfm_worker._features_settings(database) == {}  # an older database without the side file: defaults
+    sfm_worker._features_path(database).write_text(json.dumps({"peak_threshold": sfm_worker.LOW_CONTRAST_PEAK_THRESHOLD}))
+    assert sfm_worker._features_settings(database)["peak_threshold"] == sfm_worker.LOW_CONTRAST_PEAK_THRESHOLD
+    assert sfm_worker._features_path(database).name == "database_features.json"
