@@ -27,7 +27,7 @@ from .cameras import move_capture_cameras
 from .capture import scene_camera_height
 from .jobs import JobFunction
 from .point_cloud import apply_point_cloud, checked_points, find_point_cloud
-from .properties import POSES_REFINED
+from .properties import POSES_KEPT, POSES_REFINED
 
 if TYPE_CHECKING:
     from ..engine.poses import RefineOptions, RefineResult
@@ -135,10 +135,11 @@ def apply_refined_poses(scene: "bpy.types.Scene", refined: "RefineResult") -> No
     if find_point_cloud(scene) is None and len(refined.points):
         apply_point_cloud(scene, *checked_points(refined.points, refined.point_colors))
     settings = scene.vortx
-    mark = "kept as given" if refined.kept_given else "refined"
+    # The reason with its numbers goes into the status, whose tooltip shows it whole.
+    mark = f"kept as given ({refined.kept_given})" if refined.kept_given else "refined"
     if mark not in settings.pose_status:
         settings.pose_status = f"{settings.pose_status}, {mark}"
-    settings.pose_source = POSES_REFINED
+    settings.pose_source = POSES_KEPT if refined.kept_given else POSES_REFINED
     settings.pose_check = ""
     # What the refinement did and what each stage cost, as the sidecar's poses.refinement: the batch report reads it.
     scene[REFINEMENT_RECORD] = json.dumps(refinement_summary(refined))

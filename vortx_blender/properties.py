@@ -356,7 +356,7 @@ SKIPPED_NAMES_SHOWN = 3  # the panel names this many skipped photos; the report 
 
 
 # What made the poses (scene.vortx.pose_source), as the Capture panel's Poses line says it.
-POSES_BY_SFM, POSES_GIVEN, POSES_REFINED = "SfM", "given", "refined"
+POSES_BY_SFM, POSES_GIVEN, POSES_REFINED, POSES_KEPT = "SfM", "given", "refined", "kept as given"
 
 
 def capture_summary(capture: "Capture", path: str, pose_status: str | None = None, scale_source: str = "",
