@@ -410,7 +410,7 @@ def run_refine(job: dict) -> None:
                 image, pycolmap.Rigid3d(pycolmap.Rotation3d(pose[:, :3]), pose[:, 3]))
     focal = float(np.median([0.5 * (p[0] + p[1]) for p in params]))
     reconstruction = _triangulate(reconstruction, db_path, image_dir, work / "triangulated",
-                                  float(job["loose_angle_deg"]), focal)
+                                  float(job["loose_angle_deg"]), focal, bool(job.get("loose_filter", False)))
     timings["triangulate"] = time.perf_counter() - start
     say("progress", "triangulate", 1, 1)
     _write_tracks(work, reconstruction, index_of, stats, timings, sx, sy)
@@ -428,7 +428,8 @@ def _features_settings(db_path: Path) -> dict:
         return {}
 
 
-def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loose_angle_deg: float, focal: float):
+def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loose_angle_deg: float, focal: float,
+                 loose_filter: bool = False):
     import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     options = pycolmap.IncrementalPipelineOptions()
@@ -440,10 +441,12 @@ def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loos
     triangulation.complete_max_reproj_error = pixels
     # The fixed-pose bundle adjustment inside triangulate_points drops observations beyond the mapper's
     # filter (4 px by default) after each round. Poses 1.5 deg off at a 280 px focal reproject a track
-    # of three or more views 5-10 px off, so at 4 px most such tracks were dropped before our own
-    # adjustment could turn the cameras (room_05001 at 320 x 240: 10 of 40 frames refined; with the
-    # filter at the same tolerance, 28).
-    options.mapper.filter_max_reproj_error = pixels
+    # of three or more views 5-10 px off, so at 4 px most such tracks are dropped before our own
+    # adjustment can turn the cameras (room_05001 at 320 x 240: 10 of 40 frames refined; with the
+    # filter at the same tolerance, 28). `loose_filter` (RefineOptions) does that; it is off because
+    # on the real SUN3D room the extra tracks made the result worse.
+    if loose_filter:
+        options.mapper.filter_max_reproj_error = pixels
     out.mkdir(parents=True, exist_ok=True)
     return pycolmap.triangulate_points(reconstruction, db_path, image_dir, out, clear_points=True, options=options)
 

@@ -1,7 +1,7 @@
 """The refine job's triangulation settings in the COLMAP worker (sfm_worker.py), without running COLMAP:
 poses a tracker gives (1-2 deg off) reproject tracks of three or more views 5-10 px off at a 280 px
-focal, so the whole triangulation, COLMAP's fixed-pose adjustment filter included, must tolerate that
-much, or the tracks that could correct the rotations are gone before our own adjustment sees them."""
+focal, so the triangulation must tolerate that much, or the tracks that could correct the rotations are
+gone before our own adjustment sees them; COLMAP's fixed-pose adjustment filter only with `loose_filter`."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ pycolmap = pytest.importorskip("pycolmap")
 from engine.poses import sfm_worker  # noqa: E402
 
 
-def _options_of_triangulation(monkeypatch, tmp_path: Path, loose_angle_deg: float, focal: float):
+def _options_of_triangulation(monkeypatch, tmp_path: Path, loose_angle_deg: float, focal: float, loose_filter: bool = False):
     seen = {}
 
     def fake(reconstruction, database, images, out, clear_points, options):
@@ -24,17 +24,25 @@ def _options_of_triangulation(monkeypatch, tmp_path: Path, loose_angle_deg: floa
         return reconstruction
 
     monkeypatch.setattr(pycolmap, "triangulate_points", fake)
-    sfm_worker._triangulate(pycolmap.Reconstruction(), tmp_path / "db", tmp_path, tmp_path / "out", loose_angle_deg, focal)
+    sfm_worker._triangulate(pycolmap.Reconstruction(), tmp_path / "db", tmp_path, tmp_path / "out", loose_angle_deg, focal,
+                            loose_filter)
     return seen["options"]
 
 
 def test_the_fixed_pose_adjustment_keeps_tracks_as_far_off_as_the_poses_may_be(monkeypatch, tmp_path):
-    options = _options_of_triangulation(monkeypatch, tmp_path, loose_angle_deg=3.0, focal=277.0)
+    options = _options_of_triangulation(monkeypatch, tmp_path, loose_angle_deg=3.0, focal=277.0, loose_filter=True)
     pixels = 277.0 * np.tan(np.radians(3.0))  # 14.5 px: what 3 deg of rotation moves a point by
     assert options.mapper.filter_max_reproj_error == pytest.approx(pixels)
     assert options.triangulation.merge_max_reproj_error == pytest.approx(pixels)
     assert options.triangulation.complete_max_reproj_error == pytest.approx(pixels)
     assert options.triangulation.create_max_angle_error == pytest.approx(3.0)
+
+
+def test_by_default_the_fixed_pose_adjustment_filters_at_colmaps_4_px(monkeypatch, tmp_path):
+    """The loose filter is off by default: on the real SUN3D room its extra tracks cost F (RefineOptions)."""
+    options = _options_of_triangulation(monkeypatch, tmp_path, loose_angle_deg=3.0, focal=277.0)
+    assert options.mapper.filter_max_reproj_error == 4.0
+    assert options.triangulation.merge_max_reproj_error == pytest.approx(277.0 * np.tan(np.radians(3.0)))
 
 
 def test_a_tolerance_of_zero_is_colmaps_own(monkeypatch, tmp_path):
