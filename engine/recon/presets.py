@@ -25,7 +25,8 @@ from .settings import (ReconSettings, cli_flag, field_default, given_settings, m
 # (`python -m engine poses samples/demo_room/images`), then
 # `python -m engine reconstruct <posed> --quality NAME --out room.ply`: wall seconds on this project's
 # 2-core machine shared with other jobs (2026-12-03, load average 7-12), the mean of two runs each:
-# Preview 152 s and 113 s (64 and 75 CPU s), Standard 256 s and 340 s (172 and 215 CPU s).
+# Preview 152 s and 113 s (64 and 75 CPU s); Standard with the sweep 256 s and 340 s (172 and 215 CPU s),
+# and since PatchMatch is its matcher 598 s (484 CPU s, one run, load average 6-10).
 DEMO_MACHINE = "the demo room's 36 photos, 2 shared CPU cores"
 
 
@@ -65,7 +66,7 @@ PRESETS: tuple[QualityPreset, ...] = (
     QualityPreset(
         "standard", "Standard", {},
         "The default settings: PatchMatch matcher (slanted planes per pixel), 200 px stereo photos, clean walls and floors",
-        demo_seconds=298),
+        demo_seconds=598),
     QualityPreset(
         "high", "High",
         {"stereo_matcher": MATCHER_PATCHMATCH, "stereo_image_size": 320, "finish": FINISH_ROOM},
