@@ -45,7 +45,7 @@ class QualityPreset:
             return "not measured yet"
         if self.demo_seconds < 90:
             return f"{self.demo_seconds:.0f} s"
-        minutes = self.demo_seconds / 60
+        minutes = round(self.demo_seconds / 60, 1)  # rounded first: 598 s reads "10 min", not "10.0 min"
         return f"{minutes:.1f} min" if minutes < 10 else f"{minutes:.0f} min"
 
     def description(self) -> str:

@@ -96,5 +96,5 @@ def test_a_preset_the_method_does_not_read_is_refused(capsys) -> None:
 
 
 def test_times_read_as_people_say_them() -> None:
-    times = {seconds: replace(PRESETS[0], demo_seconds=seconds).time_text() for seconds in (50, 132, 898)}
-    assert times == {50: "50 s", 132: "2.2 min", 898: "15 min"}
+    times = {seconds: replace(PRESETS[0], demo_seconds=seconds).time_text() for seconds in (50, 132, 594, 598, 898)}
+    assert times == {50: "50 s", 132: "2.2 min", 594: "9.9 min", 598: "10 min", 898: "15 min"}
