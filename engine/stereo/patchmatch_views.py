@@ -18,8 +18,10 @@ Tensors on `device`; images (h, w) grey in [0, 1]; K in pixels of their image; p
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Callable, Optional, Sequence
+from typing import Callable, Iterator, Optional, Sequence, TypeVar
 
 import numpy as np
 import torch
@@ -30,11 +32,13 @@ from ..geometry.cameras import scale_intrinsics
 from ..jobs import CancelToken, ProgressCallback, check, report
 from .patchmatch import PlaneState, initial_state, patchmatch_iterations, rescore, upsample_planes
 from .plane_cost import MAX_COST, ReferenceWindows, SourceViews
-from .stage_clock import phase, stage
+from .stage_clock import collecting_now as stage_clock_collecting, phase, stage
 from .sweep import sweep_depth
 
 SEED_WINDOW = 5  # the seed sweep's NCC window at the coarsest scale (pixels)
 SEED_MIN_NCC = 0.3  # a seed depth is kept from this NCC: a wrong seed costs no more than the random plane it replaces
+
+_T = TypeVar("_T")
 
 # An image source: (position) -> (grey (h, w) float32 tensor at the finest stereo size, K (3, 3) for it).
 ImageSource = Callable[[int], tuple[Tensor, np.ndarray]]
@@ -116,9 +120,11 @@ class _KeptPlanes:
         return _KeptPlanes(state.depth.cpu(), state.normal.cpu(), state.view_weights.cpu(), (ref.height, ref.width))
 
     def restore(self, ref: ReferenceWindows, device: torch.device) -> PlaneState:
-        """A PlaneState to refine further (its costs are filled by the next rescore)."""
-        weights = self.view_weights.to(device)
-        state = PlaneState(self.depth.to(device), self.normal.to(device), torch.zeros_like(weights),
+        """A PlaneState to refine further (its costs are filled by the next rescore). Copies: refining it
+        must not change these planes, which the other views of the same pass read as this view's map
+        (on the CPU `.to` alone would hand back the same storage)."""
+        weights = self.view_weights.to(device, copy=True)
+        state = PlaneState(self.depth.to(device, copy=True), self.normal.to(device, copy=True), torch.zeros_like(weights),
                            torch.zeros_like(self.depth, device=device), weights)
         state._rays = ref.rays
         return state
@@ -246,57 +252,123 @@ def photometric_cost(state: PlaneState, ref: ReferenceWindows, pose: np.ndarray,
         return rescore(scored, ref, sources, 0.0, iteration).cost
 
 
+def cpu_workers(device: torch.device, requested: int = 0) -> int:
+    """How many references to match at once: one per torch thread on the CPU (`requested` > 0 sets it),
+    one on a GPU, and one while the stage clock is collecting (its stack is not per thread)."""
+    if device.type != "cpu" or stage_clock_collecting():
+        return 1
+    return max(1, requested if requested > 0 else torch.get_num_threads())
+
+
+@contextmanager
+def _one_torch_thread(workers: int) -> Iterator[None]:
+    """Torch's intra-op threads set to one while `workers` > 1 threads each match a reference.
+
+    PatchMatch's operations are small (a 4,096-pixel chunk of one candidate at a time), so torch's
+    own thread pool spends its time waking and joining threads: on 2 cores two threads doubled the
+    CPU seconds of one and did not halve the wall time, and when another process held a core, the
+    pool's spinning threads took 9x as long (docs/settings.md). One torch thread per reference, and
+    as many references at once as there were threads, uses the cores without either cost.
+    """
+    if workers <= 1:
+        yield
+        return
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _each(count: int, job: Callable[[int], _T], workers: int, done: Callable[[int], None]) -> list[_T]:
+    """[job(0), ..., job(count - 1)] on `workers` threads (in order; `done(n)` after the n-th finishes).
+    The first error (a cancellation included) stops the jobs not yet started and is raised once the
+    running ones return."""
+    if workers <= 1:
+        results = []
+        for i in range(count):
+            results.append(job(i))
+            done(i + 1)
+        return results
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="patchmatch") as pool:
+        futures = [pool.submit(job, i) for i in range(count)]
+        try:
+            for finished, future in enumerate(as_completed(futures), start=1):
+                future.result()
+                done(finished)
+        except BaseException:
+            for future in futures:
+                future.cancel()
+            raise
+        return [future.result() for future in futures]
+
+
 def patchmatch_views(
     references: Sequence[int], sources_of: Callable[[int], Sequence[int]], image: ImageSource, poses: np.ndarray,
     depth_ranges: Sequence[tuple[float, float]], schedule: PatchMatchSchedule, device: torch.device,
     initial_depths: Optional[Sequence[Optional[np.ndarray]]] = None, progress: Optional[ProgressCallback] = None,
-    cancel: Optional[CancelToken] = None, stages: Optional[dict[str, float]] = None,
+    cancel: Optional[CancelToken] = None, stages: Optional[dict[str, float]] = None, workers: int = 0,
 ) -> list[PlaneMap]:
     """PlaneMaps of `references` (positions into `poses` and `image`), each matched against
     `sources_of(reference)`; geometric passes use the maps of the sources that are references too.
-    `stages` receives the seconds of the photometric and the geometric stage."""
+    `stages` receives the seconds of the photometric and the geometric stage. `workers`: references
+    matched at once on the CPU (`cpu_workers`; 0 = one per torch thread). The result does not depend on
+    it: each reference's random planes come from its own seeded generator."""
     stages = stages if stages is not None else {}
-    started = time.perf_counter()
-    # Between the stages each view keeps only its planes and view selection (on the CPU); its windows
-    # (the largest part of a view's state) are rebuilt when it is refined again, so memory stays at one
-    # view's working set plus a few maps per reference.
-    kept: list[_KeptPlanes] = []
-    maps: list[Optional[PlaneMap]] = []
+    workers = cpu_workers(device, workers)
     steps = len(references) * (1 + schedule.geometric_passes)
-    for done, r in enumerate(references):
-        report(progress, "patchmatch", done, steps)
+    report(progress, "patchmatch", 0, steps)
+
+    # Between the stages each view keeps only its planes and view selection (on the CPU); its windows
+    # (the largest part of a view's state) are rebuilt when it is refined again, so memory stays at
+    # `workers` views' working sets plus a few maps per reference.
+    def photometric(done: int) -> tuple[_KeptPlanes, Optional[PlaneMap]]:
+        r = references[done]
         img, K = image(r)
         srcs = list(sources_of(r))
         state, ref = photometric_planes(img, K, poses[r], [image(s)[0] for s in srcs], [image(s)[1] for s in srcs],
                                         [poses[s] for s in srcs], depth_ranges[done], schedule, device,
                                         None if initial_depths is None else initial_depths[done], cancel)
-        kept.append(_KeptPlanes.of(state, ref))
-        maps.append(_plane_map(state, ref, state.cost) if schedule.geometric_passes == 0 else None)
-    stages["patchmatch"] = time.perf_counter() - started
-    started = time.perf_counter()
-    position = {int(r): i for i, r in enumerate(references)}
-    iteration = schedule.coarse_iterations + (schedule.scales - 1) * schedule.fine_iterations
-    for p in range(schedule.geometric_passes):
-        with phase("geometric pass"):
-            last = p == schedule.geometric_passes - 1
-            depths = [k.depth.reshape(k.size) for k in kept]  # the previous pass's maps: the result ignores the order of views
-            for done, r in enumerate(references):
-                report(progress, "patchmatch", len(references) * (1 + p) + done, steps)
-                img, K = image(r)
-                ref = ReferenceWindows(img.to(device), torch.as_tensor(K, dtype=torch.float32, device=device), schedule.window)
-                state = kept[done].restore(ref, device)
-                srcs = list(sources_of(r))
-                source_images, source_Ks, source_poses = [image(s)[0] for s in srcs], [image(s)[1] for s in srcs], [poses[s] for s in srcs]
-                source_depths = [depths[position[s]] if s in position else None for s in srcs]
-                geometric_refinement(state, ref, poses[r], source_images, source_Ks, source_poses, source_depths,
-                                     depth_ranges[done], schedule, device, iteration, cancel)
-                if last:  # the filter judges the photometric cost alone
-                    cost = photometric_cost(state, ref, poses[r], source_images, source_Ks, source_poses, device,
-                                            iteration + schedule.geometric_iterations)
-                    maps[done] = _plane_map(state, ref, cost)
+        return _KeptPlanes.of(state, ref), (_plane_map(state, ref, state.cost) if schedule.geometric_passes == 0 else None)
+
+    with _one_torch_thread(workers):
+        started = time.perf_counter()
+        results = _each(len(references), photometric, workers, lambda n: report(progress, "patchmatch", n, steps))
+        kept = [k for k, _ in results]
+        maps: list[Optional[PlaneMap]] = [m for _, m in results]
+        stages["patchmatch"] = time.perf_counter() - started
+        started = time.perf_counter()
+        position = {int(r): i for i, r in enumerate(references)}
+        iteration = schedule.coarse_iterations + (schedule.scales - 1) * schedule.fine_iterations
+        for p in range(schedule.geometric_passes):
+            with phase("geometric pass"):
+                last = p == schedule.geometric_passes - 1
+                depths = [k.depth.reshape(k.size) for k in kept]  # the previous pass's maps: the result ignores the order of views
+
+                def geometric(done: int) -> tuple[_KeptPlanes, Optional[PlaneMap]]:
+                    r = references[done]
+                    img, K = image(r)
+                    ref = ReferenceWindows(img.to(device), torch.as_tensor(K, dtype=torch.float32, device=device), schedule.window)
+                    state = kept[done].restore(ref, device)
+                    srcs = list(sources_of(r))
+                    source_images, source_Ks, source_poses = [image(s)[0] for s in srcs], [image(s)[1] for s in srcs], [poses[s] for s in srcs]
+                    source_depths = [depths[position[s]] if s in position else None for s in srcs]
+                    geometric_refinement(state, ref, poses[r], source_images, source_Ks, source_poses, source_depths,
+                                         depth_ranges[done], schedule, device, iteration, cancel)
+                    if last:  # the filter judges the photometric cost alone
+                        cost = photometric_cost(state, ref, poses[r], source_images, source_Ks, source_poses, device,
+                                                iteration + schedule.geometric_iterations)
+                        return kept[done], _plane_map(state, ref, cost)
+                    return _KeptPlanes.of(state, ref), None
+
+                offset = len(references) * (1 + p)
+                results = _each(len(references), geometric, workers, lambda n: report(progress, "patchmatch", offset + n, steps))
+                if last:
+                    maps = [m for _, m in results]
                 else:
-                    kept[done] = _KeptPlanes.of(state, ref)
-            iteration += schedule.geometric_iterations
+                    kept = [k for k, _ in results]
+                iteration += schedule.geometric_iterations
     report(progress, "patchmatch", steps, steps)
     stages["geometric consistency"] = time.perf_counter() - started
     assert all(m is not None for m in maps)

@@ -42,6 +42,11 @@ def collecting(totals: dict[str, float], device: Optional[torch.device] = None) 
         _stack.clear()
 
 
+def collecting_now() -> bool:
+    """Whether stages are being timed (the clock keeps one stack: callers then run on one thread)."""
+    return _totals is not None
+
+
 @contextmanager
 def stage(name: str) -> Iterator[None]:
     """Time the block as stage `name` (exclusive of the stages nested in it) while collecting."""

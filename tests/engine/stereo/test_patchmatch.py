@@ -188,6 +188,47 @@ def test_patchmatch_views_with_a_geometric_pass_give_every_view_its_floor() -> N
         assert np.allclose(np.linalg.norm(plane.normal, axis=-1), 1.0, atol=1e-4)
 
 
+def test_references_matched_in_parallel_give_the_maps_of_one_at_a_time() -> None:
+    images, K, poses = floor_views()
+    references = [1, 2, 3]
+    sources = {1: [0, 2, 3], 2: [1, 3, 4], 3: [1, 2, 4]}
+    run = lambda workers: patchmatch_views(references, lambda r: sources[r], lambda i: (torch.as_tensor(images[i]), K),  # noqa: E731
+                                           poses, [(0.5, 6.0)] * 3, PatchMatchSchedule(coarse_iterations=2, fine_iterations=1),
+                                           torch.device("cpu"), workers=workers)
+    threads = torch.get_num_threads()
+    two = run(2)
+    assert torch.get_num_threads() == threads, "torch's thread count is given back"
+    torch.set_num_threads(1)  # the parallel run's workers have one torch thread each
+    try:
+        one = run(1)
+    finally:
+        torch.set_num_threads(threads)
+    for a, b in zip(one, two):
+        # Each reference's random planes come from its own generator, so the order in which references
+        # are matched changes nothing: the maps are the same to the bit.
+        assert np.array_equal(a.depth, b.depth) and np.array_equal(a.normal, b.normal) and np.array_equal(a.cost, b.cost)
+
+
+def test_a_cancelled_parallel_patchmatch_stops_and_gives_back_torchs_threads() -> None:
+    from engine.jobs import CancelToken, Cancelled
+    images, K, poses = floor_views()
+    cancel = CancelToken()
+    steps: list[int] = []
+
+    def progress(stage: str, done: int, total: int) -> None:
+        steps.append(done)
+        if done == 1:
+            cancel.cancel()  # after the first reference: the others stop at their next iteration
+
+    threads = torch.get_num_threads()
+    with pytest.raises(Cancelled):
+        patchmatch_views([1, 2, 3, 4], lambda r: [s for s in range(5) if s != r][:3],
+                         lambda i: (torch.as_tensor(images[i]), K), poses, [(0.5, 6.0)] * 4, PatchMatchSchedule(),
+                         torch.device("cpu"), progress=progress, cancel=cancel, workers=2)
+    assert torch.get_num_threads() == threads
+    assert max(steps) < 4, "no reference finished its geometric pass after the cancel"
+
+
 def _reference_costs(image: np.ndarray, source: np.ndarray, K: np.ndarray, rel: np.ndarray, u: int, v: int,
                      depth: float, normal: np.ndarray, window: int = 9, step: int = 2) -> float:
     """1 - bilateral NCC of one pixel's plane against one source, written out the slow way: the plane's
