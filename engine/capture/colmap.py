@@ -103,7 +103,7 @@ def _images_folder(model: ColmapModel, path: Path, options: LoadOptions) -> Path
     if hits[best] == 0:
         raise CaptureError(f"none of the photos named in {model.folder} (e.g. {sample[0]}) is in "
                            f"{name_list([str(c) for c in candidates])}: put them in {path / 'images'} or pass "
-                           "images_dir (CLI: --images-dir).")
+                           "--images-dir FOLDER (engine reconstruct, engine poses and engine info take it).")
     return candidates[best]
 
 

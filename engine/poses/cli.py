@@ -26,6 +26,7 @@ from .sfm import INTRINSICS, MATCHERS, SfmOptions
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("capture", type=Path, help="capture folder (photos, COLMAP, transforms.json, ScanNet) or video")
+    parser.add_argument("--images-dir", type=Path, help="COLMAP model: the folder holding its photos, when they are not in images/ beside it")
     parser.add_argument("--out", type=Path, required=True, help="output folder (ScanNet layout + colmap/)")
     parser.add_argument("--refine", action="store_true",
                         help="refine the capture's own poses against the photos instead of estimating new ones "
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
     refine_options = RefineOptions(work_dir=args.work_dir, **sizes)
     progress = TqdmProgress(disable=args.quiet)
     try:
-        capture = load_capture(args.capture, progress=progress)
+        capture = load_capture(args.capture, progress=progress, images_dir=args.images_dir)
         for warning in capture.warnings:
             print(f"warning: {warning}")
         already = len(capture.posed_frames)

@@ -40,6 +40,7 @@ MESH_SUFFIXES = (".ply", ".obj", ".glb", ".usdz")  # .glb, .obj, .usdz are textu
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("capture", type=Path, help="capture folder (any layout `python -m engine info` reads), with poses")
+    parser.add_argument("--images-dir", type=Path, help="COLMAP model: the folder holding its photos, when they are not in images/ beside it")
     parser.add_argument("--out", type=Path, required=True,
                         help="output mesh: .ply (every face, vertex colours, confidence layer), or a textured VR-ready "
                              "result: .glb (one file, texture embedded; --headset picks its budget and compression), .obj (+ .mtl + "
@@ -97,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
     # defers torch (the driver loads it): `engine reconstruct --help` and refused settings answer at once
     from .driver import reconstruct
 
-    capture = load_capture(args.capture)
+    capture = load_capture(args.capture, images_dir=args.images_dir)
     if settings.frame == FRAME_CAPTURE and not capture.posed_frames:  # before structure from motion spends minutes
         raise VortxError(f"--frame {FRAME_CAPTURE}: {args.capture} has no camera poses of its own, so there are no capture "
                          f"coordinates to write the mesh in; structure from motion's poses are in the Z-up world "

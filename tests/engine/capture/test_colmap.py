@@ -224,3 +224,25 @@ def test_truncated_binary_model_is_reported(tmp_path):
     (folder / "images.bin").write_bytes(data[:40])
     with pytest.raises(CaptureError, match="images.bin is truncated"):
         load_capture(tmp_path)
+
+
+def test_photos_kept_elsewhere_are_found_with_the_images_dir_the_error_names(tmp_path):
+    import argparse
+
+    from engine.poses.cli import add_arguments as poses_arguments
+    from engine.recon.cli import add_arguments as reconstruct_arguments
+
+    poses = ring_poses(3)
+    names = ["a.png", "b.png", "c.png"]
+    write_photo_folder(tmp_path / "photos", 3, (W, H), names=names)
+    cameras, images = _model(poses, names)
+    write_colmap_text(tmp_path / "model", cameras, images)
+    with pytest.raises(CaptureError, match="--images-dir FOLDER"):
+        load_capture(tmp_path / "model")
+    # The flag the error names exists on the commands that load a capture, and it finds the photos.
+    for add_arguments in (reconstruct_arguments, poses_arguments):
+        parser = argparse.ArgumentParser()
+        add_arguments(parser)
+        args = parser.parse_args([str(tmp_path / "model"), "--images-dir", str(tmp_path / "photos"), "--out", "room.ply"])
+        capture = load_capture(args.capture, images_dir=args.images_dir)
+        assert [f.image_path.parent for f in capture.frames] == [tmp_path / "photos"] * 3
