@@ -18,7 +18,7 @@ from engine.recon.settings import BLENDER, CLI, ReconSettings, cli_flag, field_d
 
 # Flags of each command that are not reconstruction settings.
 # --quality is a preset of several settings (engine/recon/presets.py), not a setting of its own.
-RECONSTRUCT_OWN = {"help", "capture", "out", "camera_height", "refine_poses", "keep_poses", "quiet", "quality", "preview"}
+RECONSTRUCT_OWN = {"help", "capture", "images_dir", "out", "camera_height", "refine_poses", "keep_poses", "quiet", "quality", "preview"}
 BATCH_OWN = {"help", "capture", "captures", "out", "export", "camera_height", "skip_poses", "refine_poses", "keep_poses", "vr", "ray", "ray_cpus",
              "quality"}
 # scene.vortx properties that are not ReconSettings fields: the capture summary, pose estimation,
