@@ -5,7 +5,8 @@ Per reference (`photometric_planes`): the planes start at the coarsest scale fro
 (the fast sweep's, where it found one) with fronto-parallel normals and random planes elsewhere, run
 `coarse_iterations` of PatchMatch, and carry to each finer scale (twice the size), where
 `fine_iterations` refine them: a weakly textured area takes its planes from the coarse scale, where
-the same window covers four times the surface.
+the same window covers four times the surface. With `planar_prior` (ACMP, planar_prior.py), the
+pixels a triangle of confident pixels covers then run `prior_iterations` more, scored with the prior.
 
 Then (`geometric_passes`), with every reference's depth map known, each reference is rescored with
 the forward-backward reprojection error into its sources' depth maps and refined for

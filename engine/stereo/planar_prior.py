@@ -7,8 +7,8 @@ After the photometric PatchMatch of a reference (patchmatch_views.photometric_pl
 - a Delaunay triangulation of them in the image, and for each triangle the plane through its three
   3D points; a triangle is kept only where that plane is supported: seen well away from edge-on
   (a triangle that bridges a depth jump, from a chair to the wall behind it, is seen nearly edge-on)
-  and within SUPPORT_NORMAL_DEG of its three corners' own PatchMatch normals (a triangle across a
-  room corner or an object's edge is in no corner's plane);
+  and not contradicted by the confident pixels inside it (a triangle across a room's corner or an
+  object's edge has them off its plane);
 - every pixel inside a kept triangle, whose own cost is not already a support's, starts again from
   its triangle's plane and runs `prior_iterations` more PatchMatch iterations in which a candidate's
   score is ACMP's: the photometric likelihood exp(-cost^2 / beta) times the prior
@@ -44,7 +44,7 @@ SUPPORT_CELL = 5  # pixels: one support point per cell (ACMP: 5)
 # windows; at 200 px with 9 x 9 windows sampled every 2nd pixel the costs of good matches run higher.
 SUPPORT_COST = 0.15
 SUPPORT_MIN_COS = 0.2  # a triangle's plane must face the camera within ~78 deg at its centroid
-SUPPORT_NORMAL_DEG = 30.0  # and lie within this of each corner's own normal
+SUPPORT_AGREEMENT = 0.02  # and the confident pixels inside it lie within 2 % of its plane (at most a third off)
 # ACMP's prior: gamma + exp(-dd^2 / 2 sd^2) exp(-da^2 / 2 sa^2) with sd = depth range / 64, sa = 5 deg,
 # times the likelihood exp(-cost^2 / beta), beta = 0.18.
 PRIOR_GAMMA = 0.5
@@ -99,6 +99,7 @@ def triangle_planes(points: Tensor) -> tuple[Tensor, Tensor]:
 def planar_prior(state: PlaneState, ref: ReferenceWindows, depth_range: tuple[float, float]) -> Optional[PlanarPrior]:
     """The prior planes of a reference from its PatchMatch `state` (None when fewer than 3 supports or
     none of their triangles is supported)."""
+    import cv2
     from scipy.spatial import Delaunay, QhullError  # deferred: scipy is not loaded when Blender registers the add-on
 
     H, W = ref.height, ref.width
@@ -107,7 +108,7 @@ def planar_prior(state: PlaneState, ref: ReferenceWindows, depth_range: tuple[fl
     # And only where the window has texture enough for a source's (MIN_SOURCE_VARIANCE): a faint window
     # that matched well is a weak witness to hang a triangle of other pixels on.
     cost = torch.where(ref.variance > MIN_SOURCE_VARIANCE, state.cost, torch.full_like(state.cost, math.inf))
-    supports = support_points(cost, H, W, margin=ref.window // 2)
+    supports = support_points(cost, H, W, SUPPORT_CELL, SUPPORT_COST, margin=ref.window // 2)
     if len(supports) < 3:
         return None
     centres = ref.centres[supports].cpu().numpy().astype(np.float64)
@@ -119,23 +120,36 @@ def planar_prior(state: PlaneState, ref: ReferenceWindows, depth_range: tuple[fl
     pixels = supports[corners]  # (T, 3) flat pixel indices
     points = state.depth[pixels][..., None] * ref.rays[pixels]  # (T, 3, 3)
     normal, rho = triangle_planes(points)
-    # Supported: seen well away from edge-on at the centroid, and in every corner's own plane orientation.
-    centroid = points.mean(1)
-    facing = -(normal * centroid).sum(-1) / centroid.norm(dim=-1)
-    corner_cos = (state.normal[pixels] * normal[:, None]).sum(-1).min(-1).values  # (T,)
-    supported = (facing > SUPPORT_MIN_COS) & (corner_cos > math.cos(math.radians(SUPPORT_NORMAL_DEG)))
-    if not bool(supported.any()):
-        return None
-    # Every pixel's triangle (-1 outside the supports' hull).
-    simplex = torch.as_tensor(triangulation.find_simplex(ref.centres.cpu().numpy().astype(np.float64)),
-                              dtype=torch.long, device=supports.device)
-    inside = simplex >= 0
-    triangle = simplex.clamp_min(0)
-    inside &= supported[triangle]
+    # Every pixel's triangle (-1 outside the supports' hull): each triangle drawn with its index (the
+    # supports are pixels, so their corners are exact; a pixel on a shared edge takes either plane).
+    # scipy's find_simplex took up to 17 s a view here, walking the near-regular grid of supports.
+    label = np.full((H, W), -1, np.int32)
+    corner_uv = torch.stack([pixels % W, pixels // W], -1).cpu().numpy().astype(np.int32)  # (T, 3, 2)
+    for t, triangle in enumerate(corner_uv):
+        cv2.fillConvexPoly(label, triangle, t)
+    triangle = torch.as_tensor(label.reshape(-1), dtype=torch.long, device=supports.device)
+    inside = triangle >= 0
+    triangle = triangle.clamp_min(0)
     pixel_normal = normal[triangle]
     depth = plane_depth(pixel_normal, rho[triangle], ref.rays)
     near, far = depth_range
     inside &= (depth >= near) & (depth <= far)  # ACMP: a prior outside the depth range is no prior
+    # Supported: seen well away from edge-on at the centroid (a triangle bridging a depth jump, from a
+    # chair to the wall behind it, is seen nearly edge-on), and not contradicted by the confident pixels
+    # inside it: at most a third of them off its plane by more than SUPPORT_AGREEMENT (a triangle across
+    # a room's corner or an object's edge). The corners' own normals were tried as the test: at 200 px
+    # a third of PatchMatch's normals are within 30 deg, and it dropped nearly every triangle.
+    centroid = points.mean(1)
+    facing = -(normal * centroid).sum(-1) / centroid.norm(dim=-1)
+    confident = inside & (state.cost < SUPPORT_COST)
+    off_plane = confident & ((state.depth - depth).abs() > SUPPORT_AGREEMENT * depth)
+    T = int(corners.shape[0])
+    confident_count = torch.bincount(triangle[confident], minlength=T)
+    off_count = torch.bincount(triangle[off_plane], minlength=T)
+    supported = (facing > SUPPORT_MIN_COS) & (3 * off_count <= confident_count)
+    inside &= supported[triangle]
+    if not bool(inside.any()):
+        return None
     depth = torch.where(inside, depth, torch.zeros_like(depth))
     pixel_normal = torch.where(inside[:, None], pixel_normal, torch.zeros_like(pixel_normal))
     return PlanarPrior(depth, pixel_normal, (far - near) / PRIOR_DEPTH_SIGMA_STEPS)
