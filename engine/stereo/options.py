@@ -45,7 +45,12 @@ class StereoOptions:
     geometric_passes: int = 1
     seed_planes: int = 0  # PatchMatch starts from a fronto-parallel sweep over this many planes at its coarsest scale (0 = random planes)
     # ACMP's planar prior (planar_prior.py): weakly textured pixels take the plane of a triangle of
-    # confident pixels, and keep it when other views confirm it. MEASUREMENT_PENDING
+    # confident pixels, and keep it when two other views confirm it. Off: on SUN3D, the demo room and
+    # the realistic room_05002 it moved F within one run's noise (-0.008 / -0.001 / +0.002 with Finish
+    # Room; SUN3D's repeat +0.013), recall likewise, maps 0.1-0.4 points more complete, at 3-16 % more
+    # stereo CPU time (SUN3D 2.58 -> 3.00 s per keyframe): at 200 px the supports' depths are too noisy
+    # for 5 px triangles and the pixels left empty are seldom under one (docs/experiments.md, "ACMP
+    # planar prior (issue 34)").
     planar_prior: bool = False
     device: str = "cpu"
 

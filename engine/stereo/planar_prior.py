@@ -29,6 +29,7 @@ import math
 from dataclasses import dataclass
 from typing import Optional
 
+import cv2
 import numpy as np
 import torch
 from torch import Tensor
@@ -99,8 +100,8 @@ def triangle_planes(points: Tensor) -> tuple[Tensor, Tensor]:
 def planar_prior(state: PlaneState, ref: ReferenceWindows, depth_range: tuple[float, float]) -> Optional[PlanarPrior]:
     """The prior planes of a reference from its PatchMatch `state` (None when fewer than 3 supports or
     none of their triangles is supported)."""
-    import cv2
-    from scipy.spatial import Delaunay, QhullError  # deferred: scipy is not loaded when Blender registers the add-on
+    # defers scipy: not loaded when Blender registers the add-on
+    from scipy.spatial import Delaunay, QhullError
 
     H, W = ref.height, ref.width
     # Not within half a window of the edge: there the window is padded by repeating the edge, and a low

@@ -202,3 +202,14 @@ def test_the_filter_keeps_prior_depths_on_their_plane_that_two_views_confirm() -
     assert np.all(middle.depth[40:50, 60:70] == 0), "a prior depth no other view confirms is dropped"
     assert np.mean(middle.depth[30:40, 40:60] > 0) > 0.9, "the rest of the block, seen alike by its neighbours, is kept"
     assert np.all(middle.depth[:10] > 0), "photometric depths are not judged by the prior's rule"
+
+
+def test_the_option_is_off_by_default_and_validated() -> None:
+    from engine.errors import VortxError
+    from engine.stereo.options import StereoOptions
+    assert StereoOptions().planar_prior is False and PatchMatchSchedule().planar_prior is False
+    StereoOptions(planar_prior=True).validate()
+    with pytest.raises(VortxError, match="planar prior"):
+        StereoOptions(planar_prior="yes").validate()  # type: ignore[arg-type]
+    # The prior's iterations count in the photometric stage's, where the geometric passes go on from.
+    assert PatchMatchSchedule(planar_prior=True).photometric_iterations() == PatchMatchSchedule().photometric_iterations() + 2
