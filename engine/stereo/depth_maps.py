@@ -22,7 +22,7 @@ from ..geometry.cameras import project_points, scale_intrinsics, world_to_camera
 from ..capture.images import load_resized, resized_size
 from .depth_filters import median_depth, remove_speckles
 from .options import MATCHER_PATCHMATCH, StereoOptions
-from .patchmatch_views import PatchMatchSchedule, patchmatch_views
+from .patchmatch_views import PatchMatchSchedule, PlaneMap, patchmatch_views
 from .source_views import scene_points, select_sources, select_sources_by_triangulation
 from .sweep import sweep_depth
 
@@ -264,19 +264,24 @@ def _patchmatch_maps(
         sources[i] = [int(s) for s in chosen if tuple(sizes[s]) == tuple(sizes[i])]
     schedule = PatchMatchSchedule(scales=options.scales, window=options.pm_window, coarse_iterations=options.coarse_iterations,
                                   fine_iterations=options.fine_iterations, geometric_passes=options.geometric_passes,
-                                  seed_planes=options.seed_planes)
+                                  seed_planes=options.seed_planes, planar_prior=options.planar_prior)
     local_image = lambda i: image(references[i])  # noqa: E731
     planes = patchmatch_views(list(range(len(references))), lambda i: sources[i], local_image, ref_poses, ranges,
                               schedule, device, progress=progress, cancel=cancel, stages=stages)
     started = time.perf_counter()
     maps = []
     max_cost = 1.0 - options.min_ncc
+    on_prior = []
     for i, (r, plane) in enumerate(zip(references, planes)):
         keep = plane.cost <= max_cost
-        depth = np.where(keep, plane.depth, 0.0).astype(np.float32)
-        confidence = np.where(keep, np.clip(1.0 - plane.cost, 0.0, 1.0), 0.0).astype(np.float32)
+        prior = prior_candidates(plane, keep)
+        on_prior.append(prior)
+        depth = np.where(keep | prior, plane.depth, 0.0).astype(np.float32)
+        confidence = np.where(keep, np.clip(1.0 - plane.cost, 0.0, 1.0), np.where(prior, PRIOR_CONFIDENCE, 0.0)).astype(np.float32)
         used = np.array([references[s] for s in sources[i]], dtype=np.int64)
         maps.append(DepthMap(r, depth, confidence, Ks[i], poses[r], used, ranges[i], normal=plane.normal))
+    if any(p.any() for p in on_prior):
+        keep_confirmed(maps, on_prior, PRIOR_CONFIRMING_VIEWS)
     if options.consistency_views > 0:
         filter_geometric(maps, options.consistency_views)
     for m in maps:
@@ -286,6 +291,33 @@ def _patchmatch_maps(
     return maps
 
 
+# The planar prior's depths (planar_prior.py) that the photometric filter would drop: on a textureless
+# wall no window matches, so the cost says nothing there; such a depth is kept when it lies on its
+# prior plane and other views confirm it (ACMP's fusion: 2 views), with the weight in fusion of the
+# weakest photometric depth kept at the default NCC >= 0.5.
+PRIOR_AGREEMENT = 0.02  # the final depth within 2 % of the prior plane's
+PRIOR_CONFIRMING_VIEWS = 2
+PRIOR_CONFIDENCE = 0.5
+
+
+def prior_candidates(plane: PlaneMap, photometric: np.ndarray) -> np.ndarray:
+    """(h, w) bool: pixels the photometric filter drops (`photometric` False) whose depth lies on their
+    planar prior's plane; all False when the map has no prior."""
+    if plane.prior_depth is None:
+        return np.zeros(plane.depth.shape, bool)
+    prior = plane.prior_depth
+    return ~photometric & (prior > 0) & (np.abs(plane.depth - prior) <= PRIOR_AGREEMENT * prior)
+
+
+def keep_confirmed(maps: list[DepthMap], candidates: list[np.ndarray], min_views: int) -> None:
+    """Drop, in place, the depths of each map's `candidates` (h, w) bool that fewer than `min_views` other
+    maps confirm (`geometric_confirmations`); the other depths are left alone."""
+    for m, candidate, (v, u, count) in zip(maps, candidates, geometric_confirmations(maps, min_views)):
+        drop = candidate[v, u] & (count < min_views)
+        m.depth[v[drop], u[drop]] = 0.0
+        m.confidence[v[drop], u[drop]] = 0.0
+
+
 GEOMETRIC_RELATIVE_DEPTH = 0.01  # OpenMVS / MVSNet: two depths agree within 1 %...
 GEOMETRIC_REPROJECTION_PX = 1.0  # ...the point comes back within 1 px...
 GEOMETRIC_NORMAL_DEG = 25.0  # ...and the normals within 25 deg (where both maps have normals)
@@ -293,13 +325,23 @@ GEOMETRIC_NORMAL_DEG = 25.0  # ...and the normals within 25 deg (where both maps
 
 def filter_geometric(maps: list[DepthMap], min_views: int, relative_depth: float = GEOMETRIC_RELATIVE_DEPTH,
                      reprojection_px: float = GEOMETRIC_REPROJECTION_PX, normal_deg: float = GEOMETRIC_NORMAL_DEG) -> None:
-    """Drop, in place, depths that fewer than `min_views` other maps confirm. Another map confirms a
-    depth when the point projects into it, its depth there (nearest pixel) brought back into this
-    view lands within `reprojection_px` of the pixel and within `relative_depth` of the depth, and
+    """Drop, in place, depths that fewer than `min_views` other maps confirm (`geometric_confirmations`)."""
+    for m, (v, u, count) in zip(maps, geometric_confirmations(maps, min_views, relative_depth, reprojection_px, normal_deg)):
+        drop = count < min_views
+        m.depth[v[drop], u[drop]] = 0.0
+        m.confidence[v[drop], u[drop]] = 0.0
+
+
+def geometric_confirmations(maps: list[DepthMap], min_views: int, relative_depth: float = GEOMETRIC_RELATIVE_DEPTH,
+                            reprojection_px: float = GEOMETRIC_REPROJECTION_PX, normal_deg: float = GEOMETRIC_NORMAL_DEG
+                            ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Per map, the rows v, columns u and confirmation counts (each (D,)) of its D depths. Another map
+    confirms a depth when the point projects into it, its depth there (nearest pixel) brought back into
+    this view lands within `reprojection_px` of the pixel and within `relative_depth` of the depth, and
     (where both have normals) the normals agree within `normal_deg`. Checked against every other map
     that shares the view's depth range, nearest camera first (CONSISTENCY_NEIGHBOURS or `min_views`)."""
     if not maps:
-        return
+        return []
     poses = np.stack([m.pose for m in maps])
     neighbours = max(CONSISTENCY_NEIGHBOURS, min_views)
     cos_limit = np.cos(np.radians(normal_deg))
@@ -343,7 +385,4 @@ def filter_geometric(maps: list[DepthMap], min_views: int, relative_depth: float
                 agree &= np.sum(normals_world * other_normals, axis=1) >= cos_limit
             count += agree
         counts.append((v, u, count))
-    for m, (v, u, count) in zip(maps, counts):
-        drop = count < min_views
-        m.depth[v[drop], u[drop]] = 0.0
-        m.confidence[v[drop], u[drop]] = 0.0
+    return counts

@@ -44,6 +44,14 @@ class StereoOptions:
     fine_iterations: int = 2
     geometric_passes: int = 1
     seed_planes: int = 0  # PatchMatch starts from a fronto-parallel sweep over this many planes at its coarsest scale (0 = random planes)
+    # ACMP's planar prior (planar_prior.py): weakly textured pixels take the plane of a triangle of
+    # confident pixels, and keep it when two other views confirm it. Off: on SUN3D, the demo room and
+    # the realistic room_05002 it moved F within one run's noise (-0.008 / -0.001 / +0.002 with Finish
+    # Room; SUN3D's repeat +0.013), recall likewise, maps 0.1-0.4 points more complete, at 3-16 % more
+    # stereo CPU time (SUN3D 2.58 -> 3.00 s per keyframe): at 200 px the supports' depths are too noisy
+    # for 5 px triangles and the pixels left empty are seldom under one (docs/experiments.md, "ACMP
+    # planar prior (issue 34)").
+    planar_prior: bool = False
     device: str = "cpu"
 
     def validate(self) -> None:
@@ -74,5 +82,7 @@ class StereoOptions:
             raise VortxError(f"stereo references must be at least 1, got {self.max_references}")
         if self.seed_planes != 0 and self.seed_planes < 3:
             raise VortxError(f"PatchMatch seed planes must be 0 (off) or at least 3, got {self.seed_planes}")
+        if not isinstance(self.planar_prior, bool):
+            raise VortxError(f"PatchMatch planar prior must be true or false, got {self.planar_prior!r}")
         if self.consistency_views < 0:
             raise VortxError(f"stereo consistency views cannot be negative, got {self.consistency_views}")

@@ -65,6 +65,7 @@ class PlaneState:
     costs: Tensor  # (S, HW) per-source cost of the current plane
     cost: Tensor  # (HW,) aggregated (view-weighted) cost of the current plane
     view_weights: Tensor  # (S, HW) the view selection of the last update
+    prior_depth: Optional[Tensor] = None  # (HW,) the planar prior's depth (planar_prior.py), 0 where none; None when off
 
     @property
     def rho(self) -> Tensor:
@@ -147,7 +148,10 @@ def _area_neighbours(ref: ReferenceWindows, pixels: Tensor) -> tuple[Tensor, Ten
     concatenated, A = 80) and whether each lies inside the image; computed once per reference and
     checkerboard colour, since the same pixels are updated every iteration."""
     cache = ref.__dict__.setdefault("_area_neighbours", {})
-    key = (int(pixels[0]) if len(pixels) else -1, int(pixels.shape[0]))
+    # A checkerboard colour or a subset of one (the planar prior's pixels): told apart by their count,
+    # ends and sum, so a subset never reads a colour's neighbours.
+    key = (int(pixels[0]) if len(pixels) else -1, int(pixels[-1]) if len(pixels) else -1, int(pixels.shape[0]),
+           int(pixels.sum()))
     if key not in cache:
         H, W = ref.height, ref.width
         v, u = pixels // W, pixels % W
@@ -194,9 +198,33 @@ def _refinement_candidates(state: PlaneState, ref: ReferenceWindows, pixels: Ten
     return depths, normals
 
 
+@dataclass
+class PriorAt:
+    """The planar prior at the pixels being updated (ACMP, Xu & Tao 2020): a candidate's aggregated cost
+    c becomes the score exp(-c^2 / beta) x (gamma + exp(-dd^2 / 2 sd^2) exp(-da^2 / 2 sa^2)), highest
+    wins, where dd and da are its depth's and normal's differences from the pixel's triangle plane."""
+
+    depth: Tensor  # (N,) the prior plane's depth along each pixel's ray (> 0)
+    normal: Tensor  # (N, 3) the prior plane's unit normal
+    depth_sigma: float  # metres
+    angle_sigma: float  # radians
+    beta: float
+    gamma: float
+
+    def scores(self, costs: Tensor, depths: Tensor, normals: Tensor) -> Tensor:
+        """(C, N) ACMP's score (higher is better) of C candidates with aggregated costs (C, N), depths
+        (C, N) and normals (C, N, 3)."""
+        depth_term = torch.exp(-(depths - self.depth[None]) ** 2 / (2 * self.depth_sigma ** 2))
+        angle = torch.arccos((normals * self.normal[None]).sum(-1).clamp(-1.0, 1.0))
+        angle_term = torch.exp(-angle ** 2 / (2 * self.angle_sigma ** 2))
+        return torch.exp(-costs ** 2 / self.beta) * (self.gamma + depth_term * angle_term)
+
+
 def _update(state: PlaneState, ref: ReferenceWindows, sources: SourceViews, pixels: Tensor, depths: Tensor,
-            normals: Tensor, iteration: int, geometric_weight: float, reselect_views: bool) -> None:
-    """Score candidate planes (C, N) at `pixels` and keep, per pixel, the best of them and the current plane."""
+            normals: Tensor, iteration: int, geometric_weight: float, reselect_views: bool,
+            prior: Optional[PriorAt] = None) -> None:
+    """Score candidate planes (C, N) at `pixels` and keep, per pixel, the best of them and the current
+    plane: the lowest aggregated cost, or with a `prior` the highest ACMP score."""
     C, N = depths.shape
     costs = plane_costs(ref, sources, pixels, depths, normals, geometric_weight)  # (C, S, N)
     current = state.costs[:, pixels]  # (S, N)
@@ -207,7 +235,12 @@ def _update(state: PlaneState, ref: ReferenceWindows, sources: SourceViews, pixe
         weights = state.view_weights[:, pixels]
     scores = aggregate(torch.cat([current[None], costs]), weights)  # (C + 1, N)
     scores = torch.where(torch.cat([torch.ones_like(depths[:1]), depths]) > 0, scores, torch.full_like(scores, 10.0))
-    best = scores.argmin(0)  # 0 = keep the current plane
+    if prior is None:
+        best = scores.argmin(0)  # 0 = keep the current plane
+    else:
+        all_depths = torch.cat([state.depth[pixels][None], depths])
+        all_normals = torch.cat([state.normal[pixels][None], normals])
+        best = prior.scores(scores, all_depths, all_normals).argmax(0)
     changed = best > 0
     pick = (best - 1).clamp_min(0)
     index = torch.arange(N, device=pixels.device)

@@ -5,7 +5,8 @@ Per reference (`photometric_planes`): the planes start at the coarsest scale fro
 (the fast sweep's, where it found one) with fronto-parallel normals and random planes elsewhere, run
 `coarse_iterations` of PatchMatch, and carry to each finer scale (twice the size), where
 `fine_iterations` refine them: a weakly textured area takes its planes from the coarse scale, where
-the same window covers four times the surface.
+the same window covers four times the surface. With `planar_prior` (ACMP, planar_prior.py), the
+pixels a triangle of confident pixels covers then run `prior_iterations` more, scored with the prior.
 
 Then (`geometric_passes`), with every reference's depth map known, each reference is rescored with
 the forward-backward reprojection error into its sources' depth maps and refined for
@@ -31,6 +32,7 @@ from torch import Tensor
 from ..geometry.cameras import scale_intrinsics
 from ..jobs import CancelToken, ProgressCallback, check, report
 from .patchmatch import PlaneState, initial_state, patchmatch_iterations, rescore, upsample_planes
+from .planar_prior import planar_prior, prior_iterations
 from .plane_cost import MAX_COST, ReferenceWindows, SourceViews
 from .stage_clock import collecting_now as stage_clock_collecting, phase, stage
 from .sweep import sweep_depth
@@ -55,6 +57,12 @@ class PatchMatchSchedule:
     geometric_weight: float = 0.2  # cost per pixel of reprojection error (ACMM: 0.2, capped at 3 px)
     seed: int = 0
     seed_planes: int = 0  # > 0: start the coarsest scale from a fronto-parallel sweep over this many planes (0 = random planes)
+    planar_prior: bool = False  # ACMP's planar prior after the finest scale (planar_prior.py)
+    prior_iterations: int = 2  # PatchMatch iterations scored with the prior (ACMP: 3)
+
+    def photometric_iterations(self) -> int:
+        """Iterations of the photometric stage: where the geometric passes' shrinking schedules go on from."""
+        return self.coarse_iterations + (self.scales - 1) * self.fine_iterations + (self.prior_iterations if self.planar_prior else 0)
 
 
 @dataclass
@@ -64,6 +72,7 @@ class PlaneMap:
     depth: np.ndarray  # (h, w) float32 metres, planar z (> 0 everywhere before filtering)
     normal: np.ndarray  # (h, w, 3) float32 unit, camera coordinates, facing the camera
     cost: np.ndarray  # (h, w) float32 photometric cost 1 - NCC of the view-weighted sources, in [0, 2]
+    prior_depth: Optional[np.ndarray] = None  # (h, w) float32 the planar prior's depth, 0 where none (None: prior off)
 
 
 def _resize(image: Tensor, size: tuple[int, int]) -> Tensor:
@@ -114,10 +123,12 @@ class _KeptPlanes:
     normal: Tensor
     view_weights: Tensor
     size: tuple[int, int]  # (h, w)
+    prior_depth: Optional[Tensor] = None  # (HW,) the planar prior's depth, 0 where none
 
     @staticmethod
     def of(state: PlaneState, ref: ReferenceWindows) -> "_KeptPlanes":
-        return _KeptPlanes(state.depth.cpu(), state.normal.cpu(), state.view_weights.cpu(), (ref.height, ref.width))
+        return _KeptPlanes(state.depth.cpu(), state.normal.cpu(), state.view_weights.cpu(), (ref.height, ref.width),
+                           None if state.prior_depth is None else state.prior_depth.cpu())
 
     def restore(self, ref: ReferenceWindows, device: torch.device) -> PlaneState:
         """A PlaneState to refine further (its costs are filled by the next rescore). Copies: refining it
@@ -125,16 +136,18 @@ class _KeptPlanes:
         (on the CPU `.to` alone would hand back the same storage)."""
         weights = self.view_weights.to(device, copy=True)
         state = PlaneState(self.depth.to(device, copy=True), self.normal.to(device, copy=True), torch.zeros_like(weights),
-                           torch.zeros_like(self.depth, device=device), weights)
+                           torch.zeros_like(self.depth, device=device), weights,
+                           None if self.prior_depth is None else self.prior_depth.to(device, copy=True))
         state._rays = ref.rays
         return state
 
 
 def _plane_map(state: PlaneState, ref: ReferenceWindows, cost: Tensor) -> PlaneMap:
     h, w = ref.height, ref.width
+    prior = None if state.prior_depth is None else state.prior_depth.reshape(h, w).cpu().numpy().astype(np.float32)
     return PlaneMap(state.depth.reshape(h, w).cpu().numpy().astype(np.float32),
                     state.normal.reshape(h, w, 3).cpu().numpy().astype(np.float32),
-                    cost.clamp(0, MAX_COST).reshape(h, w).cpu().numpy().astype(np.float32))
+                    cost.clamp(0, MAX_COST).reshape(h, w).cpu().numpy().astype(np.float32), prior)
 
 
 def _fronto_normals(rays: Tensor) -> Tensor:
@@ -221,6 +234,15 @@ def photometric_planes(
         iteration += count
         previous_size = size
     assert state is not None and ref is not None
+    if schedule.planar_prior:
+        with phase("planar prior"):
+            with stage("prior planes"):
+                prior = planar_prior(state, ref, depth_range) if len(sources) else None
+            if prior is None:
+                state.prior_depth = torch.zeros_like(state.depth)
+            else:
+                prior_iterations(state, ref, sources, prior, schedule.prior_iterations, generator, iteration, cancel)
+                state.prior_depth = prior.depth
     return state, ref
 
 
@@ -340,7 +362,7 @@ def patchmatch_views(
         stages["patchmatch"] = time.perf_counter() - started
         started = time.perf_counter()
         position = {int(r): i for i, r in enumerate(references)}
-        iteration = schedule.coarse_iterations + (schedule.scales - 1) * schedule.fine_iterations
+        iteration = schedule.photometric_iterations()
         for p in range(schedule.geometric_passes):
             with phase("geometric pass"):
                 last = p == schedule.geometric_passes - 1

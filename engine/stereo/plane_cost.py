@@ -39,6 +39,11 @@ WINDOW_STEP = 2  # window pixels sampled every 2nd pixel
 SIGMA_SPATIAL = 5.0  # pixels: the bilateral weight's spatial falloff (COLMAP: 5)
 SIGMA_COLOUR = 0.08  # grey level 0..1: the bilateral weight's colour falloff (COLMAP: 3 / 255 of 0..1 intensities is too strict for JPEG noise)
 MIN_SOURCE_VARIANCE = 1e-5  # a warped window flatter than this has nothing to correlate
+# A reference window this flat has nothing to correlate either (ACMM and ACMP check both windows): on a
+# uniform window (a blank patch, a saturated lamp, clipped black) the NCC is a ratio of rounding errors
+# and scored any plane, often as a near-perfect match. Far below the source's bar: a window of 8-bit grey
+# levels with one texel a level off is ~6e-7, and a smooth wall's faint shading still correlates.
+MIN_REFERENCE_VARIANCE = 1e-8
 MAX_REPROJECTION_PX = 3.0  # the geometric term's cap (COLMAP: 3 px)
 PIXEL_CHUNK = 4096  # pixels scored at once on the CPU (see plane_costs)
 MIN_GRAZING_COS = 0.05  # a plane seen this close to edge-on warps the window into a line: no hypothesis
@@ -70,7 +75,7 @@ class ReferenceWindows:
         if window < 3 or window % 2 == 0:
             raise ValueError(f"window must be odd and >= 3, got {window}")
         H, W = image.shape
-        self.height, self.width = H, W
+        self.height, self.width, self.window = H, W, window
         self.image, self.K = image, K
         self.K_inv = torch.linalg.inv(K)
         half = window // 2
@@ -189,7 +194,8 @@ def _candidate_costs(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor
         cov = torch.einsum("snm,nm->sn", sampled, weighted_centred)
         ncc = cov / (variance * var_s.clamp_min(0)).sqrt().clamp_min(1e-9)
         centre_grid = centre_xy  # (S, N, 2)
-        sees = in_front & (centre_grid.abs() <= 1.0).all(-1) & valid & (var_s > MIN_SOURCE_VARIANCE)
+        sees = in_front & (centre_grid.abs() <= 1.0).all(-1) & valid & (var_s > MIN_SOURCE_VARIANCE) \
+            & (variance > MIN_REFERENCE_VARIANCE)
         cost = torch.where(sees, 1.0 - ncc.clamp(-1.0, 1.0), torch.full_like(ncc, MAX_COST))
     if sources.depths is not None:
         with stage("geometric term"):
