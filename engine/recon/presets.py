@@ -24,10 +24,11 @@ from .settings import (ReconSettings, cli_flag, field_default, given_settings, m
 # The demo room (samples/demo_room, 36 photos of 320 x 240) posed as `make demo` poses it
 # (`python -m engine poses samples/demo_room/images`), then
 # `python -m engine reconstruct <posed> --quality NAME --out room.ply`: wall seconds on this project's
-# 2-core machine shared with other jobs (2026-12-03, load average 7-12), the mean of two runs each:
-# Preview 152 s and 113 s (64 and 75 CPU s); Standard with the sweep 256 s and 340 s (172 and 215 CPU s),
-# and since PatchMatch is its matcher 598 s (484 CPU s, one run, load average 6-10).
-DEMO_MACHINE = "the demo room's 36 photos, 2 shared CPU cores"
+# 2-core machine, idle (2026-12-03, load average under 0.5 at the start; PatchMatch matching two
+# references at once, one torch thread each): Preview 11 s (16 CPU s), Standard 56 s (94 CPU s), High
+# 124 s (218 CPU s). Before PatchMatch ran references in parallel, Standard took 598 s beside other
+# jobs: torch's own thread pool stalled whenever another process held a core.
+DEMO_MACHINE = "the demo room's 36 photos, 2 CPU cores"
 
 
 @dataclass(frozen=True)
@@ -62,18 +63,16 @@ PRESETS: tuple[QualityPreset, ...] = (
         # (docs/experiments.md, "A finished room"), and costs about a CPU second.
         {"stereo_matcher": MATCHER_FAST, "stereo_image_size": 160, "stereo_views": 16, "finish": FINISH_ROOM},
         "Fast matcher, 160 px stereo photos, 16 depth maps: a quick look at the room",
-        demo_seconds=132),
+        demo_seconds=11),
     QualityPreset(
         "standard", "Standard", {},
         "The default settings: PatchMatch matcher (slanted planes per pixel), 200 px stereo photos, clean walls and floors",
-        demo_seconds=598),
+        demo_seconds=56),
     QualityPreset(
         "high", "High",
         {"stereo_matcher": MATCHER_PATCHMATCH, "stereo_image_size": 320, "finish": FINISH_ROOM},
-        "PatchMatch matcher at 320 px stereo photos: finer depth on sharp photos, about 2.5x Standard's stereo time",
-        # `reconstruct` of the demo room on its true poses with one thread while the machine's load average
-        # was 8-10 (docs/experiments.md "PatchMatch stereo"; Standard took 206 s measured the same way).
-        demo_seconds=898),
+        "PatchMatch matcher at 320 px stereo photos: finer depth on sharp photos, about 2x Standard's time",
+        demo_seconds=124),
 )
 QUALITY_NAMES: tuple[str, ...] = tuple(p.name for p in PRESETS)
 DEFAULT_QUALITY = "standard"
