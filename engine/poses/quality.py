@@ -96,7 +96,7 @@ POSE_CHECK_MAX_FRAMES = 24  # evenly spaced frames checked (their neighbours by 
 MAX_GIVEN_POSE_ERROR_PX = 1.0  # mean reprojection error above which the given poses are called off
 # Fewer triangulated points than this: too little to judge by. A weakly textured room gives few
 # (room_05001, 24 photos at 320 x 240: 126-127 points, tracker or true poses; room_05002's tracker
-# poses: 45 points at 1.50 px), and the mean over a few dozen points already separates 0.4 px (poses
+# poses: 45-46 points at 1.50 px), and the mean over a few dozen points already separates 0.4 px (poses
 # that fit) from 1.5-3.7 px (a tracker's). At 50, room_05002 went unjudged and kept its poses: F 0.18,
 # 10,111 pieces; judged and refined, F 0.45, normals 0.74, 39 pieces. A false call costs only time:
 # a refinement that is not better is refused and the given poses kept.
