@@ -49,6 +49,11 @@ MAX_BEHIND_SHARE = 1.0
 OPENING_CELL = 0.1  # m: the grid a candidate wall's own surface is rasterised on to find its openings
 OPENING_CAMERAS = 24  # cameras (evenly spaced) whose sight lines test where surface behind a wall was seen through
 MAX_BELOW_FLOOR_SHARE = 3.0  # surface below a floor, as a share of its area (stereo's error puts some there)
+# ... counted down to this far below the floor: what a table top has below it (the floor, the walls'
+# lower parts) is within its own height, while depth noise of poses a degree or two off spreads thinly
+# as far as the room's bounds reach (room_07002 on poses with 61 frames unrefined, bounds from the
+# frusta: 11 m^2 spread over 1.5 m below a 3.2 m^2 floor, which was then not found: 3,472 pieces).
+BELOW_FLOOR_DEPTH = 0.7  # m
 MAX_UP_BELOW_FLOOR_SHARE = 0.5  # up-facing surface below a floor (a lower floor: the candidate is a table top)
 # The room's up from the cameras' horizon (`room_up`): considered from MIN_TILT_DEG off world Z; beyond
 # MAX_TILT_DEG the cameras were not held level, or the world is not Z up at all.
@@ -395,7 +400,8 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
     # but not facing up as a lower floor would; a table top has the floor below it.
     floor_peaks = [p for p in _histogram_peaks(centroids[up, 2], areas[up], min_area)
                    if p[0] < low - 0.3
-                   and areas[centroids[:, 2] < p[0] - BEHIND_MARGIN].sum() <= MAX_BELOW_FLOOR_SHARE * p[1]
+                   and areas[(centroids[:, 2] < p[0] - BEHIND_MARGIN)
+                             & (centroids[:, 2] >= p[0] - BELOW_FLOOR_DEPTH)].sum() <= MAX_BELOW_FLOOR_SHARE * p[1]
                    and areas[up & (centroids[:, 2] < p[0] - BEHIND_MARGIN)].sum() <= MAX_UP_BELOW_FLOOR_SHARE * p[1]]
     if floor_peaks:
         z, weight = min(floor_peaks)

@@ -52,6 +52,29 @@ def test_planes_are_the_box(scene):
     assert info["manhattan"]
 
 
+def test_the_floor_is_found_over_depth_noise_spread_thinly_far_below_it(scene):
+    """Poses a degree or two off put crumpled surface below the floor, as far as the room's bounds
+    reach: here 4 times the floor's area in sideways-facing scraps from 0.25 to 1.75 m below it. Within
+    the floor's first 0.7 m there is less than 3 times its area, so it is still the floor, at z = 0."""
+    mesh, _, centres = scene
+    rng = np.random.default_rng(1)
+    floor_area = ROOM[0] * ROOM[1]
+    scraps, area = [], 0.0
+    while area < 4.0 * floor_area:
+        x, y, z = rng.uniform(0, ROOM[0] - 0.4), rng.uniform(0, ROOM[1] - 0.4), rng.uniform(-1.75, -0.55)
+        facing = [(1, 0, 0), (0, 1, 0), (-1, 0, 0), (0, -1, 0)][rng.integers(4)]
+        along = (0, 1, 0) if facing[0] else (1, 0, 0)
+        scraps.append(rectangle((x, y, z), along, (0, 0, 1), 0.4, 0.3, facing, step=0.1))
+        area += 0.4 * 0.3
+    vertices, faces = merge([(mesh.vertices.astype(np.float64), mesh.faces)] + scraps)
+    centroids, areas, _ = face_geometry(vertices, faces)
+    assert areas[centroids[:, 2] < -0.2].sum() > 3.5 * floor_area  # the old rule (all of it) refused this floor
+
+    planes, _ = find_structural_planes(vertices, faces, centres)
+    floors = [p for p in planes if p.kind == FLOOR]
+    assert len(floors) == 1 and abs(floors[0].offset) < 0.01
+
+
 def test_votes_see_through_the_door_not_the_wall(scene):
     _, views, _ = scene
     in_door = np.array([[1.6, ROOM[1], 1.0]])
