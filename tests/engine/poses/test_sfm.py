@@ -272,3 +272,14 @@ if __name__ == "__main__":  # write the synthetic photos somewhere to look at th
     room = room_faces(np.random.default_rng(7))
     for index, pose in enumerate(true_poses()):
         cv2.imwrite(str(target / f"{index:03d}.png"), render(pose, room))
+
+
+def test_the_mappers_error_filter_follows_the_photos_size():
+    """COLMAP's 4 px is for photos of 1,000 px and more; smaller photos get a filter as sharp in angle,
+    down to 1 px, and larger ones keep COLMAP's own."""
+    from engine.poses.sfm_worker import mapper_max_error_px
+
+    assert mapper_max_error_px(1024) == 4.0 and mapper_max_error_px(4000) == 4.0
+    assert mapper_max_error_px(320) == pytest.approx(1.28)
+    assert mapper_max_error_px(640) == pytest.approx(2.56)
+    assert mapper_max_error_px(160) == 1.0
