@@ -54,6 +54,10 @@ MAX_BELOW_FLOOR_SHARE = 3.0  # surface below a floor, as a share of its area (st
 # as far as the room's bounds reach (room_07002 on poses with 61 frames unrefined, bounds from the
 # frusta: 11 m^2 spread over 1.5 m below a 3.2 m^2 floor, which was then not found: 3,472 pieces).
 BELOW_FLOOR_DEPTH = 0.7  # m
+# Up-facing peaks closer than this are one floor: poses left a degree or two off spread a floor over
+# 15-20 cm in two or three humps (room_07002: 1.5 and 2.3 m^2, 14 cm apart), each too small on its own
+# for the surface below it. Table tops stand 40 cm and more above the floor.
+FLOOR_LAYER = 0.2  # m
 MAX_UP_BELOW_FLOOR_SHARE = 0.5  # up-facing surface below a floor (a lower floor: the candidate is a table top)
 # The room's up from the cameras' horizon (`room_up`): considered from MIN_TILT_DEG off world Z; beyond
 # MAX_TILT_DEG the cameras were not held level, or the world is not Z up at all.
@@ -128,6 +132,31 @@ def _histogram_peaks(values: np.ndarray, weights: np.ndarray, min_weight: float)
         if all(abs(position - p) > 2 * PEAK_WINDOW for p, _ in peaks):
             peaks.append((position, weight))
     return peaks
+
+
+def _floor_layers(heights: np.ndarray, areas: np.ndarray, min_area: float) -> list[tuple[float, float]]:
+    """Floor candidates from the heights (N,) and areas (N,) of up-facing faces: the histogram's peaks,
+    those within FLOOR_LAYER of each other joined into one layer: [(area-weighted median height of
+    the layer, its area within PEAK_WINDOW of its peaks)], lowest first. A layer spans at most
+    FLOOR_LAYER from its lowest peak (no chains of table tops)."""
+    peaks = sorted(_histogram_peaks(heights, areas, min_area))
+    layers: list[list[tuple[float, float]]] = []
+    for peak in peaks:
+        if layers and peak[0] - layers[-1][0][0] <= FLOOR_LAYER:
+            layers[-1].append(peak)
+        else:
+            layers.append([peak])
+    joined = []
+    for layer in layers:
+        if len(layer) == 1:
+            joined.append(layer[0])
+            continue
+        inside = (heights >= layer[0][0] - PEAK_WINDOW) & (heights <= layer[-1][0] + PEAK_WINDOW)
+        order = np.argsort(heights[inside])
+        cumulative = np.cumsum(areas[inside][order])
+        median = float(heights[inside][order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+        joined.append((median, float(cumulative[-1])))
+    return joined
 
 
 def _refine_offset(values: np.ndarray, weights: np.ndarray, around: float) -> float:
@@ -398,7 +427,7 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
     # The floor bounds the room from below: little surface lies below it. Stereo's depth error puts
     # some there (the fast sweep on SUN3D's carpet: 2.1 m^2 of crumpled surface below a 1.4 m^2 floor),
     # but not facing up as a lower floor would; a table top has the floor below it.
-    floor_peaks = [p for p in _histogram_peaks(centroids[up, 2], areas[up], min_area)
+    floor_peaks = [p for p in _floor_layers(centroids[up, 2], areas[up], min_area)
                    if p[0] < low - 0.3
                    and areas[(centroids[:, 2] < p[0] - BEHIND_MARGIN)
                              & (centroids[:, 2] >= p[0] - BELOW_FLOOR_DEPTH)].sum() <= MAX_BELOW_FLOOR_SHARE * p[1]

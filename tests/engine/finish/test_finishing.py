@@ -75,6 +75,29 @@ def test_the_floor_is_found_over_depth_noise_spread_thinly_far_below_it(scene):
     assert len(floors) == 1 and abs(floors[0].offset) < 0.01
 
 
+def test_a_floor_spread_over_two_humps_is_one_floor():
+    """Poses a degree or two off spread a floor over two humps 14 cm apart, here half of it at -7 cm and
+    half at +7 cm, with crumpled surface below 4 times the area of either half: neither hump would pass
+    for a floor on its own, the two together do, and the floor lies between them."""
+    rng = np.random.default_rng(2)
+    X, Y, _ = ROOM
+    parts = room_parts(with_hole=False)
+    parts[0] = rectangle((0, 0, -0.07), (1, 0, 0), (0, 1, 0), X / 2, Y, (0, 0, 1))
+    parts.append(rectangle((X / 2, 0, 0.07), (1, 0, 0), (0, 1, 0), X / 2, Y, (0, 0, 1)))
+    half_area, area = X / 2 * Y, 0.0
+    while area < 4.0 * half_area:
+        x, y, z = rng.uniform(0, X - 0.4), rng.uniform(0, Y - 0.4), rng.uniform(-0.65, -0.4)
+        facing = [(1, 0, 0), (0, 1, 0), (-1, 0, 0), (0, -1, 0)][rng.integers(4)]
+        parts.append(rectangle((x, y, z), (0, 1, 0) if facing[0] else (1, 0, 0), (0, 0, 1), 0.4, 0.3, facing, step=0.1))
+        area += 0.4 * 0.3
+    vertices, faces = merge(parts)
+    _, poses = cameras()
+
+    planes, _ = find_structural_planes(vertices, faces, poses[:, :3, 3])
+    floors = [p for p in planes if p.kind == FLOOR]
+    assert len(floors) == 1 and abs(floors[0].offset) <= 0.07 + 1e-6
+
+
 def test_votes_see_through_the_door_not_the_wall(scene):
     _, views, _ = scene
     in_door = np.array([[1.6, ROOM[1], 1.0]])
