@@ -152,11 +152,15 @@ def _floor_layers(heights: np.ndarray, areas: np.ndarray, min_area: float) -> li
             joined.append(layer[0])
             continue
         inside = (heights >= layer[0][0] - PEAK_WINDOW) & (heights <= layer[-1][0] + PEAK_WINDOW)
-        order = np.argsort(heights[inside])
-        cumulative = np.cumsum(areas[inside][order])
-        median = float(heights[inside][order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
-        joined.append((median, float(cumulative[-1])))
+        joined.append((_weighted_median(heights[inside], areas[inside]), float(areas[inside].sum())))
     return joined
+
+
+def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
+    """The weighted median of `values` (N,) with `weights` (N,), N > 0."""
+    order = np.argsort(values)
+    cumulative = np.cumsum(weights[order])
+    return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
 def _refine_offset(values: np.ndarray, weights: np.ndarray, around: float) -> float:
@@ -164,9 +168,7 @@ def _refine_offset(values: np.ndarray, weights: np.ndarray, around: float) -> fl
     near = np.abs(values - around) <= PEAK_WINDOW
     if not near.any():
         return around
-    order = np.argsort(values[near])
-    cumulative = np.cumsum(weights[near][order])
-    return float(values[near][order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
+    return _weighted_median(values[near], weights[near])
 
 
 def manhattan_heading(normals: np.ndarray, areas: np.ndarray) -> tuple[float, float]:
