@@ -263,7 +263,7 @@ def _pose_result(
     notes: list[str] = []
     low_contrast = result["database"].get("low_contrast")
     if low_contrast:
-        notes.append(f"low-contrast photos ({low_contrast['before']:.0f} features per photo): features found again "
+        notes.append(f"few features ({low_contrast['before']:.0f} per photo, low contrast or small photos): found again "
                      f"at a lower contrast threshold ({low_contrast['after']:.0f} per photo)")
     attempts = result["database"].get("mapping_attempts") or []
     if len(attempts) > 1:

@@ -63,6 +63,13 @@ import numpy as np
 # registered; the bundled demo room (775 per photo) never gets here.
 LOW_CONTRAST_KEYPOINTS = 500
 LOW_CONTRAST_PEAK_THRESHOLD = 0.002
+# SfM poses every photo from its features alone, so it asks for more of them than the refinement
+# (which starts from given poses): below this median it also extracts at the lower threshold. Small
+# photos get here: the demo room's 320 x 240 photos keep 796 features each at the default threshold,
+# and its first photos (which look at far walls over few matches) came out 0.15 deg off their
+# neighbours on average, moving a wall 4-6 m away by 5-12 cm; at 0.002 (1,600 features each) 0.06 deg,
+# baselines 0.8 -> 0.3 % off, centre error 0.19 -> 0.17 cm median, 8 -> 15 s (three runs each).
+SFM_FEW_KEYPOINTS = 1200
 MAPPING_ATTEMPTS = 3
 # COLMAP's mapper drops observations more than 4 px from their point: a tolerance for photos of
 # 1,000 px and more. On smaller photos it is that much looser in angle, and the model keeps matches a
@@ -200,10 +207,10 @@ def run_sfm(job: dict) -> None:
     _extract(job, db_path, image_dir, names, reader)
     low_contrast = None
     typical = _median_keypoints(db_path)
-    if typical < LOW_CONTRAST_KEYPOINTS:
-        # Dim, blurred or plain-walled photos: SIFT's default contrast threshold keeps too few
-        # features to chain the views; a third of it finds three times as many on such photos and
-        # changes nothing on well-textured ones (they never get here).
+    if typical < SFM_FEW_KEYPOINTS:
+        # Dim, blurred, plain-walled or small photos: SIFT's default contrast threshold keeps too few
+        # features to chain the views and pose them precisely; a third of it finds two to three times
+        # as many on such photos and changes nothing on well-textured large ones (they never get here).
         db_path.unlink()
         _extract(job, db_path, image_dir, names, reader, peak_threshold=LOW_CONTRAST_PEAK_THRESHOLD)
         low_contrast = {"before": typical, "after": _median_keypoints(db_path)}

@@ -132,13 +132,13 @@ def test_dim_low_contrast_photos_get_their_features_found_again(room_photos, tmp
         image = cv2.GaussianBlur(cv2.imread(str(path)).astype(np.float32), (0, 0), 1.5)
         cv2.imwrite(str(tmp_path / path.name), np.clip(0.08 * image + 40, 0, 255).astype(np.uint8))
     result = estimate_poses(photo_capture(tmp_path, K), SfmOptions(intrinsics="fixed"))
-    note = next((n for n in result.notes if n.startswith("low-contrast photos")), f"no note in {result.notes}")
+    note = next((n for n in result.notes if n.startswith("few features")), f"no note in {result.notes}")
     before, after = (float(w) for w in re.findall(r"\((\d+)(?: features)? per photo", note))
     assert before < 500 < after
     assert len(result.registered) == 12
     assert pose_errors([f.pose for f in result.capture.frames], truth)["rotation_deg_max"] < 1.0
     # Well-textured photos keep COLMAP's default threshold.
-    assert not any("low-contrast" in n for n in estimate_poses(photo_capture(folder, K), SfmOptions(intrinsics="fixed")).notes)
+    assert not any("few features" in n for n in estimate_poses(photo_capture(folder, K), SfmOptions(intrinsics="fixed")).notes)
 
 
 def test_mapping_runs_again_while_fewer_than_half_the_photos_are_posed(tmp_path):
