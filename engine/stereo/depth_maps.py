@@ -25,6 +25,7 @@ from .options import MATCHER_PATCHMATCH, StereoOptions
 from .patchmatch_views import PatchMatchSchedule, PlaneMap, patchmatch_views
 from .source_views import scene_points, select_sources, select_sources_by_triangulation
 from .sweep import sweep_depth
+from .sparse_seed import sparse_seed_depth
 
 MIN_RANGE_POINTS = 30  # sparse points a view must see before its depth range is taken from them
 CONSISTENCY_NEIGHBOURS = 6  # references a depth is checked against (more when more confirmations are asked for)
@@ -266,8 +267,13 @@ def _patchmatch_maps(
                                   fine_iterations=options.fine_iterations, geometric_passes=options.geometric_passes,
                                   seed_planes=options.seed_planes, planar_prior=options.planar_prior)
     local_image = lambda i: image(references[i])  # noqa: E731
+    seeds = None
+    if options.sparse_seed and points is not None and len(points):
+        started = time.perf_counter()
+        seeds = [sparse_seed_depth(points, Ks[i], ref_poses[i], tuple(sizes[i]), ranges[i]) for i in range(len(references))]
+        stages["sparse seed"] = time.perf_counter() - started
     planes = patchmatch_views(list(range(len(references))), lambda i: sources[i], local_image, ref_poses, ranges,
-                              schedule, device, progress=progress, cancel=cancel, stages=stages)
+                              schedule, device, initial_depths=seeds, progress=progress, cancel=cancel, stages=stages)
     started = time.perf_counter()
     maps = []
     max_cost = 1.0 - options.min_ncc

@@ -2,7 +2,8 @@
 geometric-consistency passes over all views together.
 
 Per reference (`photometric_planes`): the planes start at the coarsest scale from an initial depth
-(the fast sweep's, where it found one) with fronto-parallel normals and random planes elsewhere, run
+(the sparse points' triangulated depth, sparse_seed.py, where they cover the view) with the normals of
+its surface, and random planes elsewhere, run
 `coarse_iterations` of PatchMatch, and carry to each finer scale (twice the size), where
 `fine_iterations` refine them: a weakly textured area takes its planes from the coarse scale, where
 the same window covers four times the surface. With `planar_prior` (ACMP, planar_prior.py), the
@@ -197,7 +198,8 @@ def photometric_planes(
 ) -> tuple[PlaneState, ReferenceWindows]:
     """One reference's planes at the stereo size (the size of `image`), from photo-consistency alone.
 
-    initial_depth: optional (h', w') depth map (0 = none) of any size, e.g. the fast sweep's.
+    initial_depth: optional (h', w') depth map (0 = none) of any size, e.g. the sparse points'
+    (sparse_seed.py); its planes start with the normals of its surface.
     """
     generator = torch.Generator(device=device).manual_seed(schedule.seed)
     H, W = image.shape
@@ -216,7 +218,7 @@ def photometric_planes(
             if initial_depth is not None:
                 start = torch.as_tensor(initial_depth, dtype=torch.float32)[None, None]
                 depth = F.interpolate(start, size=size, mode="nearest").reshape(-1).to(device)
-                normal = _fronto_normals(ref.rays)
+                normal = depth_map_normals(depth, ref)
             if schedule.seed_planes > 0 and len(sources):
                 with stage("seed sweep"):
                     seeded = seed_depth(ref, sources, depth_range, schedule.seed_planes)

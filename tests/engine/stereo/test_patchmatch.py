@@ -311,3 +311,31 @@ def test_a_sweep_seed_reaches_the_floor_in_fewer_iterations() -> None:
     # two from random planes get (0.92 / 0.98 in the test above); from random planes it is well short.
     assert seeded[0] > 0.85 and seeded[1] > 0.9, seeded
     assert unseeded[0] < seeded[0] - 0.05 and unseeded[1] < seeded[1] - 0.1, (seeded, unseeded)
+
+
+def test_a_seed_from_the_sparse_points_reaches_the_floor_in_fewer_iterations() -> None:
+    """300 floor points (as SfM would triangulate) interpolated into a depth map start PatchMatch on
+    the floor's plane, normals included: one iteration per scale gets where random planes do not."""
+    from engine.stereo.sparse_seed import sparse_seed_depth
+
+    images, K, poses = floor_views()
+    ref, srcs = 2, [0, 1, 3, 4]
+    depth, normal = true_floor(K, poses[ref])
+    inside = interior()
+    rng = np.random.default_rng(3)
+    points = np.stack([rng.uniform(-3, 3, 300), rng.uniform(0, 6, 300), np.zeros(300)], 1)
+    seed = sparse_seed_depth(points, K, poses[ref], SIZE, (0.5, 6.0))
+    assert (seed > 0)[inside].mean() > 0.9
+
+    def accuracy(initial: np.ndarray | None) -> tuple[float, float]:
+        state, _ = photometric_planes(
+            torch.as_tensor(images[ref]), K, poses[ref], [torch.as_tensor(images[s]) for s in srcs], [K] * len(srcs),
+            [poses[s] for s in srcs], (0.5, 6.0), PatchMatchSchedule(scales=2, coarse_iterations=1, fine_iterations=1),
+            torch.device("cpu"), initial_depth=initial)
+        found = state.depth.reshape(SIZE[1], SIZE[0]).numpy()
+        angle = np.degrees(np.arccos(np.clip(state.normal.reshape(SIZE[1], SIZE[0], 3).numpy() @ normal, -1, 1)))
+        return float(np.mean((np.abs(found - depth) / depth)[inside] < 0.01)), float(np.mean(angle[inside] < 10.0))
+
+    seeded, unseeded = accuracy(seed), accuracy(None)
+    assert seeded[0] > 0.9 and seeded[1] > 0.9, seeded
+    assert unseeded[0] < seeded[0] - 0.05 and unseeded[1] < seeded[1] - 0.1, (seeded, unseeded)
