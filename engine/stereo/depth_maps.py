@@ -226,17 +226,21 @@ def filter_consistent(maps: list[DepthMap], min_views: int) -> None:
 
 
 def patchmatch_sources(poses: np.ndarray, Ks: np.ndarray, sizes: np.ndarray, reference: int, count: int,
-                       depth_range: tuple[float, float]) -> np.ndarray:
+                       depth_range: tuple[float, float], seed: Optional[np.ndarray] = None) -> np.ndarray:
     """Sources of `reference` among the given views by triangulation angle and overlap over its whole
-    view (a grid of its pixels at the middle of its depth range); the pose rule (`select_sources`) when
-    that finds fewer than `count`.
+    view (a grid of its pixels, lifted to the sparse points' surface where `seed` (h, w), their
+    triangulated depth, covers them, and to the middle of its depth range elsewhere); the pose rule
+    (`select_sources`) when that finds fewer than `count`.
 
-    Not over the sparse points it sees, as OpenMVS does: in a room they sit on the textured things, so
+    Not over the sparse points alone, as OpenMVS does: in a room they sit on the textured things, so
     the sources chosen for them miss the plain walls and floor around them. On the demo room (SfM
     poses and points) the grid gave F 0.789 against 0.763, recall 0.737 against 0.687; on the real
-    SUN3D room 0.493 against 0.490 (docs/experiments.md, "PatchMatch faster on 2 cores")."""
+    SUN3D room 0.493 against 0.490 (docs/experiments.md, "PatchMatch faster on 2 cores"). The grid at
+    one middle depth, though, chose sources with less overlap where the surface is far from it: lifting
+    it to the seed's depth took SUN3D's depth maps within 5 % from 0.609 to 0.637 and room_07002's F
+    from 0.656 to 0.686 (docs/experiments.md, "Sources over the seed's surface")."""
     middle = 2.0 / (1.0 / depth_range[0] + 1.0 / depth_range[1])  # the middle in inverse depth
-    seen = scene_points(Ks[reference], poses[reference], tuple(sizes[reference]), middle)
+    seen = scene_points(Ks[reference], poses[reference], tuple(sizes[reference]), middle, seed)
     chosen = select_sources_by_triangulation(poses, Ks, sizes, reference, count, seen)
     if len(chosen) < count:
         extra = [s for s in select_sources(poses, reference, count) if s not in set(chosen.tolist())]
@@ -258,20 +262,21 @@ def _patchmatch_maps(
     Ks = np.stack([image(r)[1] for r in references])
     sizes = np.array([(image(r)[0].shape[1], image(r)[0].shape[0]) for r in references])
     ranges = [depth_range(Ks[i], poses[r], tuple(sizes[i]), options, points, bounds) for i, r in enumerate(references)]
-    # Sources among the references (positions into `references`), all of one size.
-    sources = {}
-    for i, r in enumerate(references):
-        chosen = patchmatch_sources(ref_poses, Ks, sizes, i, options.sources, ranges[i])
-        sources[i] = [int(s) for s in chosen if tuple(sizes[s]) == tuple(sizes[i])]
-    schedule = PatchMatchSchedule(scales=options.scales, window=options.pm_window, coarse_iterations=options.coarse_iterations,
-                                  fine_iterations=options.fine_iterations, geometric_passes=options.geometric_passes,
-                                  seed_planes=options.seed_planes, planar_prior=options.planar_prior)
-    local_image = lambda i: image(references[i])  # noqa: E731
     seeds = None
     if options.sparse_seed and points is not None and len(points):
         started = time.perf_counter()
         seeds = [sparse_seed_depth(points, Ks[i], ref_poses[i], tuple(sizes[i]), ranges[i]) for i in range(len(references))]
         stages["sparse seed"] = time.perf_counter() - started
+    # Sources among the references (positions into `references`), all of one size.
+    sources = {}
+    for i, r in enumerate(references):
+        chosen = patchmatch_sources(ref_poses, Ks, sizes, i, options.sources, ranges[i],
+                                    None if seeds is None else seeds[i])
+        sources[i] = [int(s) for s in chosen if tuple(sizes[s]) == tuple(sizes[i])]
+    schedule = PatchMatchSchedule(scales=options.scales, window=options.pm_window, coarse_iterations=options.coarse_iterations,
+                                  fine_iterations=options.fine_iterations, geometric_passes=options.geometric_passes,
+                                  seed_planes=options.seed_planes, planar_prior=options.planar_prior)
+    local_image = lambda i: image(references[i])  # noqa: E731
     planes = patchmatch_views(list(range(len(references))), lambda i: sources[i], local_image, ref_poses, ranges,
                               schedule, device, initial_depths=seeds, progress=progress, cancel=cancel, stages=stages)
     started = time.perf_counter()

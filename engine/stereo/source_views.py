@@ -52,14 +52,21 @@ def select_sources(poses: np.ndarray, reference: int, count: int) -> np.ndarray:
     return order[np.isfinite(penalty[order])][:count].astype(np.int64)
 
 
-def scene_points(K: np.ndarray, pose: np.ndarray, size: tuple[int, int], depth: float) -> np.ndarray:
+def scene_points(K: np.ndarray, pose: np.ndarray, size: tuple[int, int], depth: float,
+                 depth_map: np.ndarray | None = None) -> np.ndarray:
     """(n, 3) world points where a SCENE_SAMPLES x SCENE_SAMPLES grid of the reference's pixels meets
-    the plane at `depth`: what the reference sees when no sparse points tell it."""
+    the plane at `depth`: what the reference sees when no sparse points tell it. With `depth_map`
+    (h, w) at `size` (0 = none, e.g. the sparse points' seed), a pixel it covers is lifted to its depth."""
     w, h = size
     u, v = np.meshgrid((np.arange(SCENE_SAMPLES) + 0.5) * w / SCENE_SAMPLES,
                        (np.arange(SCENE_SAMPLES) + 0.5) * h / SCENE_SAMPLES)
-    rays = np.linalg.inv(K) @ np.stack([u.ravel(), v.ravel(), np.ones(u.size)])
-    return (pose[:3, :3] @ (rays * depth) + pose[:3, 3:4]).T
+    u, v = u.ravel(), v.ravel()
+    depths = np.full(u.size, float(depth))
+    if depth_map is not None:
+        known = depth_map[np.minimum(v.astype(int), h - 1), np.minimum(u.astype(int), w - 1)]
+        depths = np.where(known > 0, known, depths)
+    rays = np.linalg.inv(K) @ np.stack([u, v, np.ones(u.size)])
+    return (pose[:3, :3] @ (rays * depths) + pose[:3, 3:4]).T
 
 
 def triangulation_scores(poses: np.ndarray, Ks: np.ndarray, sizes: np.ndarray, reference: int,
