@@ -62,7 +62,8 @@ def sparse_seed_depth(points: np.ndarray, K: np.ndarray, pose: np.ndarray, size:
         triangles = Delaunay(uv).simplices  # (T, 3) into the points
     except QhullError:  # all on one line
         return empty
-    rays_of = lambda u, v: np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)  # noqa: E731
+    K_inv = np.linalg.inv(K)
+    rays_of = lambda u, v: np.stack([u, v, np.ones_like(u)], -1) @ K_inv.T  # noqa: E731  (z = 1; skew kept)
     corners = torch.as_tensor(rays_of(uv[:, 0], uv[:, 1]) * z[:, None])[triangles]  # (T, 3, 3) camera points
     normal, rho = triangle_planes(corners)
     centroid = corners.mean(1)
