@@ -160,6 +160,9 @@ def run_worker(
         )
 
 
+MATCH_ARRAYS = ("keypoints_uv", "keypoints_start", "match_image", "match_keypoint")
+
+
 def run_pose_job(
     job: dict[str, Any],
     work: Path,
@@ -170,7 +173,8 @@ def run_pose_job(
 ) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
     """Run one sfm_worker job in `work` (job.json in, result.json + points.npz out) and read its
     result: (result, points (N, 3), colours (N, 3)). `work` is removed afterwards unless keep_work.
-    A refine job's tracks (points.npz's obs_* arrays) come in result["tracks"] as arrays.
+    A refine job's tracks (points.npz's obs_* arrays) come in result["tracks"] as arrays, its keypoints
+    and verified matches in result["matches"] (keypoints_uv, keypoints_start, match_image, match_keypoint).
 
     Raises Cancelled, or PoseError naming the task when the process fails or leaves no result.
     """
@@ -183,6 +187,9 @@ def run_pose_job(
             with np.load(work / "points.npz") as npz:
                 if "obs_image" in npz:
                     result["tracks"] = {key: npz[key] for key in ("obs_image", "obs_point", "obs_uv")}
+                if "match_image" in npz:
+                    result["tracks"]["obs_keypoint"] = npz["obs_keypoint"]
+                    result["matches"] = {key: npz[key] for key in MATCH_ARRAYS}
                 return result, npz["xyz"], npz["rgb"]
         except (OSError, ValueError) as error:
             raise PoseError(f"the {task} process ended without a usable result ({error}); "

@@ -46,9 +46,10 @@ from ..capture.naming import name_list
 from ..errors import PoseError
 from ..geometry.view_selection import DEFAULT_KEYFRAME_ANGLE_DEG, DEFAULT_KEYFRAME_TRANSLATION_M, select_keyframes
 from ..jobs import CancelToken, ProgressCallback, check, report
-from .adjust import AdjustOptions, Tracks, adjust, log_rotations, rodrigues
+from .adjust import Adjusted, AdjustOptions, Tracks, adjust, log_rotations, rodrigues
 from .align import rotation_angle_deg, umeyama
 from .process import run_pose_job
+from .resect import Resection, ResectOptions, point_correspondences, resect_rotation
 
 STATUS_REFINED = "refined"
 STATUS_REFUSED = "refused"
@@ -442,6 +443,8 @@ def _adjusted(
     groups = _intrinsic_groups(Ks)
     cam_from_world = np.stack([_cam_from_world(given[k]) for k in chosen])
     tracks = Tracks(tracks_found["obs_image"], tracks_found["obs_point"], tracks_found["obs_uv"], xyz)
+    keypoint_of = np.asarray(tracks_found.get("obs_keypoint", np.full(len(tracks.camera), -1)), dtype=np.int64)
+    start_tracks = tracks
 
     start = time.perf_counter()
     report(progress, "poses: bundle adjustment", 0, 2)
@@ -474,6 +477,14 @@ def _adjusted(
             best, adjustment, stretches = free, PASS_PRIORS, free_stretches
     report(progress, "poses: bundle adjustment", 2, 2)
     timings["adjust"] = time.perf_counter() - start
+    start = time.perf_counter()
+    resected = _resect_left_out(Ks, best, tracks if best is held else start_tracks,
+                                keypoint_of if best is held else keypoint_of[held.inlier],
+                                result.get("matches"), constrained, chosen_given, options)
+    timings["resect"] = time.perf_counter() - start
+    if resected:
+        notes.append(f"{len(resected)} frame(s) that too few triangulated points constrain were posed from the points "
+                     "their refined neighbours see (rotation solved, centre kept)")
 
     kept_given = ""
     if not best.error_adjusted_px <= (1.0 - options.min_gain) * best.error_given_px:
@@ -481,8 +492,29 @@ def _adjusted(
                       f"error against {best.error_given_px:.2f} px with the given ones (a gain under "
                       f"{100 * options.min_gain:.0f} %)")
     adjusted_c2w = np.stack([_cam_to_world(p) for p in best.cam_from_world])
-    return _apply(capture, posed_index, given, chosen, adjusted_c2w, constrained, seen, best, adjustment, stretches,
-                  kept_given, notes, units, extent, Ks, groups, xyz, rgb, timings, result, options)
+    return _apply(capture, posed_index, given, chosen, adjusted_c2w, constrained, seen, resected, best, adjustment,
+                  stretches, kept_given, notes, units, extent, Ks, groups, xyz, rgb, timings, result, options)
+
+
+def _resect_left_out(Ks: np.ndarray, best: Adjusted, tracks: Tracks, keypoint_of: np.ndarray, matches: Optional[dict],
+                     constrained: np.ndarray, chosen_given: np.ndarray, options: RefineOptions) -> dict[int, Resection]:
+    """{camera: Resection} for the unconstrained cameras (K,) that `resect.py` can pose from the points
+    their constrained neighbours observe, within max_rotation_deg of the given rotation.
+
+    best: the adjustment of `tracks` (whose observations' keypoint indices are keypoint_of, -1 unknown);
+    chosen_given: (K, 4, 4) the given camera-to-world poses of the adjusted frames."""
+    if matches is None or constrained.all() or (keypoint_of < 0).any():
+        return {}
+    found = point_correspondences(tracks, best.inlier, keypoint_of, matches, constrained, ~constrained)
+    resect_options = ResectOptions(min_inliers=options.min_points)
+    resected: dict[int, Resection] = {}
+    for k, (uv, point) in sorted(found.items()):
+        given_rotation = chosen_given[k, :3, :3].T
+        solved = resect_rotation(Ks[k], chosen_given[k, :3, 3], given_rotation, uv, best.points[point], resect_options,
+                                 np.random.default_rng(k))
+        if solved is not None and rotation_angle_deg(solved.rotation @ given_rotation.T) <= options.max_rotation_deg:
+            resected[k] = solved
+    return resected
 
 
 def _points_seen_with_others(tracks: Tracks, inlier: np.ndarray, cameras: int) -> np.ndarray:
@@ -583,7 +615,8 @@ def follow_keyframes(given_c2w: np.ndarray, chosen: np.ndarray, adjusted_c2w: np
 
 
 def _apply(capture: Capture, posed_index: list[int], given: np.ndarray, chosen: np.ndarray, adjusted_c2w: np.ndarray,
-           constrained: np.ndarray, seen: np.ndarray, best, adjustment: str, stretches: list[StretchScale],
+           constrained: np.ndarray, seen: np.ndarray, resected: dict[int, Resection], best, adjustment: str,
+           stretches: list[StretchScale],
            kept_given: str, notes: list[str], units: str, extent: float, Ks: np.ndarray, groups: np.ndarray,
            xyz: np.ndarray, rgb: np.ndarray, timings: dict[str, float], result: dict,
            options: RefineOptions) -> RefineResult:
@@ -605,8 +638,11 @@ def _apply(capture: Capture, posed_index: list[int], given: np.ndarray, chosen: 
     adjusted_c2w = adjusted_c2w.copy()
     for k in np.flatnonzero(~constrained):
         adjusted_c2w[k] = given[chosen[k]]
+        if int(k) in resected:
+            adjusted_c2w[k, :3, :3] = resected[int(k)].rotation.T
+            continue
         reasons[int(chosen[k])] = (f"it sees {int(seen[k])} triangulated points that two other photos also see, fewer "
-                                   f"than {options.min_points}")
+                                   f"than {options.min_points}, and too few of the points its refined neighbours see")
     everyone = follow_keyframes(given, chosen, adjusted_c2w)
     focal_of = {}
     for k, g in zip(chosen, groups):

@@ -42,7 +42,8 @@ pairs, one triangulation with the given poses and intrinsics (fixed); the parent
                      with the same SIFT settings, from its side file DATABASE_features.json)
 Its result: work_dir/result.json {"images": [{"name", "num_points3D"}], "mean_reprojection_error",
 "num_points3D", "scale": [sx, sy] (downscaled / source pixels), "database", "timings"} and
-work_dir/points.npz as for SfM plus the tracks (obs_image, obs_point, obs_uv; see `_write_tracks`).
+work_dir/points.npz as for SfM plus the tracks (obs_image, obs_point, obs_uv, obs_keypoint), every
+photo's keypoints and the verified matches (see `_write_tracks`).
 """
 
 from __future__ import annotations
@@ -436,7 +437,7 @@ def run_refine(job: dict) -> None:
                                   float(job["loose_angle_deg"]), focal, bool(job.get("loose_filter", False)))
     timings["triangulate"] = time.perf_counter() - start
     say("progress", "triangulate", 1, 1)
-    _write_tracks(work, reconstruction, index_of, stats, timings, sx, sy)
+    _write_tracks(work, reconstruction, index_of, stats, timings, sx, sy, db_path)
 
 
 def _features_path(db_path: Path) -> Path:
@@ -475,10 +476,16 @@ def _triangulate(reconstruction, db_path: Path, image_dir: Path, out: Path, loos
 
 
 def _write_tracks(work: Path, reconstruction, index_of: dict[str, int], stats: dict, timings: dict,
-                  sx: float, sy: float) -> None:
+                  sx: float, sy: float, db_path: Path) -> None:
     """points.npz: xyz, rgb, error per point, and the observations (obs_image: job image index,
     obs_point: row in xyz, obs_uv: COLMAP's keypoint position in the downscaled photo, the frame of
-    the scaled K COLMAP triangulated with); result.json: counts, the given poses' mean error, timings."""
+    the scaled K COLMAP triangulated with, obs_keypoint: its keypoint's index in that photo); every
+    photo's keypoints (keypoints_uv, photo i's rows keypoints_start[i]:keypoints_start[i + 1]) and the
+    geometrically verified matches (match_image (M, 2) job image indices, match_keypoint (M, 2)), which
+    let the parent pose a photo the triangulation left out from the points its neighbours see;
+    result.json: counts, the given poses' mean error, timings."""
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
+
     images = []
     for image_id in sorted(reconstruction.reg_image_ids()):
         image = reconstruction.images[image_id]
@@ -488,17 +495,35 @@ def _write_tracks(work: Path, reconstruction, index_of: dict[str, int], stats: d
     xyz = np.array([reconstruction.points3D[p].xyz for p in point_ids], dtype=np.float64).reshape(-1, 3)
     rgb = np.array([reconstruction.points3D[p].color for p in point_ids], dtype=np.uint8).reshape(-1, 3)
     error = np.array([reconstruction.points3D[p].error for p in point_ids], dtype=np.float64)
-    obs_image, obs_point, obs_uv = [], [], []
+    obs_image, obs_point, obs_uv, obs_keypoint = [], [], [], []
     for pid in point_ids:
         for element in reconstruction.points3D[pid].track.elements:
             image = reconstruction.images[element.image_id]
             obs_image.append(index_of[image.name])
             obs_point.append(row_of[pid])
             obs_uv.append(image.points2D[element.point2D_idx].xy)
+            obs_keypoint.append(element.point2D_idx)
+    keypoints = [np.zeros((0, 2))] * len(index_of)
+    match_image, match_keypoint = [np.zeros((0, 2), dtype=np.int64)], [np.zeros((0, 2), dtype=np.int64)]
+    with pycolmap.Database.open(str(db_path)) as db:
+        job_index = {im.image_id: index_of[im.name] for im in db.read_all_images() if im.name in index_of}
+        for image_id, i in job_index.items():
+            keypoints[i] = np.asarray(db.read_keypoints(image_id))[:, :2].astype(np.float64).reshape(-1, 2)
+        pair_ids, geometries = db.read_two_view_geometries()
+        for pair_id, geometry in zip(pair_ids, geometries):
+            first, second = pycolmap.pair_id_to_image_pair(pair_id)
+            inliers = np.asarray(geometry.inlier_matches, dtype=np.int64).reshape(-1, 2)
+            if first in job_index and second in job_index and len(inliers):
+                match_image.append(np.tile([job_index[first], job_index[second]], (len(inliers), 1)))
+                match_keypoint.append(inliers)
     np.savez(work / "points.npz", xyz=xyz, rgb=rgb, error=error,
              obs_image=np.asarray(obs_image, dtype=np.int64),
              obs_point=np.asarray(obs_point, dtype=np.int64),
-             obs_uv=np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2))
+             obs_uv=np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2),
+             obs_keypoint=np.asarray(obs_keypoint, dtype=np.int64),
+             keypoints_uv=np.concatenate(keypoints).reshape(-1, 2),
+             keypoints_start=np.cumsum([0] + [len(k) for k in keypoints]).astype(np.int64),
+             match_image=np.concatenate(match_image), match_keypoint=np.concatenate(match_keypoint))
     result = {
         "images": images,
         "mean_reprojection_error": float(reconstruction.compute_mean_reprojection_error()) if point_ids else None,

@@ -22,6 +22,7 @@ from fixtures_tracks import K as TRACK_K, observe, ring_room
 
 SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "demo_room"
 WILD = 7  # the frame given a pose 30 degrees off
+FAR = 13  # the frame given a pose 6 degrees off: beyond the triangulation's tolerance, within the refinement's
 
 
 @pytest.fixture(scope="module")
@@ -34,6 +35,7 @@ def demo_refinement():
     truth = [np.loadtxt(SAMPLE / "truth" / "pose" / f"{Path(n).stem}.txt").reshape(4, 4) for n in names]
     given = perturbed(truth, np.random.default_rng(1), max_shift=0.003)
     given[WILD][:3, :3] = given[WILD][:3, :3] @ rotation_about([0.0, 1.0, 0.0], 30.0)
+    given[FAR][:3, :3] = truth[FAR][:3, :3] @ rotation_about([0.3, 1.0, 0.2], 6.0)
     frames = [Frame(SAMPLE / "images" / n, 320, 240, K.copy(), g) for n, g in zip(names, given)]
     capture = Capture(SAMPLE / "images", "scannet", frames, metric=True)
     result = refine_poses(capture, RefineOptions())
@@ -81,6 +83,18 @@ def test_a_wildly_wrong_pose_keeps_its_given_pose_and_is_reported(demo_refinemen
     assert len(result.refined) == len(truth) - 1
     assert any(wild.name in w for w in result.warnings)
     assert f"{wild.name} (" in result.report and "keeps its given pose" in result.report
+
+
+def test_a_frame_turned_beyond_the_triangulations_tolerance_is_posed_from_its_neighbours_points(demo_refinement):
+    """6 deg at a 251 px focal is 26 px: the triangulation (3 deg) keeps none of that photo's tracks, but
+    its matches with the refined neighbours tie its keypoints to their points, and its rotation is solved
+    from those with its centre kept."""
+    truth, given, result = demo_refinement
+    far = result.capture.frames[FAR]
+    assert far.name in result.refined
+    assert rotation_angle_deg(truth[FAR][:3, :3].T @ far.pose[:3, :3]) < 0.6  # as the frames triangulated
+    assert np.array_equal(far.pose[:3, 3], given[FAR][:3, 3])
+    assert "posed from the points their refined neighbours see" in result.report
 
 
 def test_rotations_a_few_degrees_off_still_triangulate_and_are_refined():
