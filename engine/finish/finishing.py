@@ -51,6 +51,7 @@ ABSORBED_SHARE = 0.8  # of a piece's area
 FLOOR_UP_MAX_TURN_DEG = 5.0  # the floor's normal refines the horizon's up by at most this,
 FLOOR_UP_MIN_AGREEMENT = 0.3  # and only when this share of its area agrees with it (`planes.floor_up`)
 EXTENT_PERCENTILE = 0.5  # % of a plane's surface cut at each end of its extent (stray faces)
+BLIND_REACH = 3.0  # camera heights: the farthest a camera's blind spot on the floor (or ceiling) reaches
 
 
 @dataclass
@@ -193,12 +194,44 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
         # In some photo, and no view saw through it: a stereo gap on a plain wall or a stretch hidden
         # behind furniture closes; an open door or a window seen through stays open.
         fillable = (votes.in_view >= 1) & ~votes.contradicted() & inside_walls
+        if plane.kind in (FLOOR, CEILING):
+            # The floor a camera stood over (and the ceiling it stood under) is in no photo near its foot,
+            # yet walked on: closed too, where no view saw through it.
+            fillable |= beneath_cameras(plane, centres, views) & ~votes.contradicted() & inside_walls
         grid.keep |= fillable.reshape(shape)
         # Closing holes, not inventing surface: an added stretch must touch surface that was seen.
         labels, count = ndimage.label(grid.keep)
         seen_labels = np.unique(labels[grid.observed & grid.keep])
         grid.keep &= np.isin(labels, seen_labels[seen_labels > 0])
     return grid
+
+
+def beneath_cameras(plane: StructuralPlane, points: np.ndarray, views: Sequence[DepthView],
+                    max_reach: float = BLIND_REACH) -> np.ndarray:
+    """(N,) bool: which points (N, 3) on a floor or ceiling plane lie in some camera's blind spot on it:
+    nearer the camera's foot (its centre projected onto the plane) than any ray through its photo's
+    border meets the plane. A photo held level frames the floor from about 2.3 camera heights away
+    (a 47 deg vertical field of view), so a walk through a room sees none of the floor it walked on.
+    The reach is at most `max_reach` camera heights (a camera facing away from the plane)."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    inside = np.zeros(len(points), bool)
+    for view in views:
+        pose = np.asarray(view.pose, np.float64)
+        centre = pose[:3, 3]
+        height = float(plane.distance(centre[None])[0])
+        if height <= 0:
+            continue
+        foot = centre - height * plane.normal
+        h, w = np.asarray(view.depth).shape
+        edge_u, edge_v = np.linspace(0, w, 17), np.linspace(0, h, 13)
+        border = np.concatenate([np.stack([edge_u, np.zeros(17)], 1), np.stack([edge_u, np.full(17, h)], 1),
+                                 np.stack([np.zeros(13), edge_v], 1), np.stack([np.full(13, w), edge_v], 1)])
+        rays = (pose[:3, :3] @ np.linalg.solve(np.asarray(view.K, np.float64), np.c_[border, np.ones(len(border))].T)).T
+        towards = rays @ plane.normal  # < 0: the ray heads for the plane
+        hits = centre + rays[towards < -1e-9] * (height / -towards[towards < -1e-9])[:, None]
+        reach = min(float(np.min(np.linalg.norm(hits - foot, axis=1), initial=np.inf)), max_reach * height)
+        inside |= np.linalg.norm(points - foot, axis=1) < reach
+    return inside
 
 
 def grid_mesh(grid: PlaneGrid, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

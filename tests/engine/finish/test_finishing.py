@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.finish.finishing import finish_mesh, typical_support
+from engine.finish.finishing import beneath_cameras, finish_mesh, typical_support
 from engine.finish.free_space import PlainDepthView, view_votes
 from engine.finish.modes import FINISH_CLEAN, FINISH_OFF, FINISH_ROOM
-from engine.finish.planes import CEILING, FLOOR, WALL, camera_horizon_up, face_geometry, find_structural_planes, room_up
+from engine.finish.planes import CEILING, FLOOR, WALL, StructuralPlane, camera_horizon_up, face_geometry, find_structural_planes, room_up
 from engine.geometry.depth_render import render_depth
 from engine.mesh_io import Mesh
 from engine.observation import ADDED
@@ -138,6 +138,49 @@ def test_room_closes_the_hole_keeps_the_door_and_drops_the_floater(scene):
     # Seen faces are not marked added: the floor's observed cells are 0.
     floor_faces = np.abs(centroids[:, 2]) < 0.003
     assert (~face_added[floor_faces]).mean() > 0.8
+
+
+def test_the_floor_the_cameras_stood_over_is_closed_though_no_photo_shows_it(scene):
+    """The cameras look out from a 0.3 m circle, 17 deg down: no photo frames the floor within about
+    1.4 m of a camera's foot. A hole there (stereo has nothing to match) is closed and marked added."""
+    mesh, views, centres = scene
+    middle = np.array([ROOM[0] / 2, ROOM[1] / 2, 0.0])
+    centroids = mesh.vertices[mesh.faces].mean(axis=1)
+    hole = (np.abs(centroids[:, 2]) < 0.03) & (np.linalg.norm(centroids[:, :2] - middle[:2], axis=1) < 0.8)
+    holed = Mesh(mesh.vertices, mesh.faces[~hole])
+    assert not view_votes(middle[None], views).in_view.any()  # in no photo
+
+    out = finish_mesh(holed, views, centres, 0.04, FINISH_ROOM).mesh
+
+    at_middle = _faces_near(out, middle, 0.5)
+    assert at_middle.sum() > 100
+    assert (out.attributes[ADDED][out.faces[at_middle]] > 0.5).all()
+    assert np.abs(out.vertices[out.faces[at_middle]][..., 2]).max() < 0.003  # on the floor plane
+
+
+def test_a_cameras_blind_spot_on_the_floor_reaches_where_its_photo_first_frames_the_floor():
+    """A level camera 1.5 m up with a 31 deg half field of view (vertically) frames the floor from
+    1.5 / tan(31 deg) = 2.50 m ahead; one facing 60 deg down frames it under its own foot; one facing up
+    frames no floor and is given three camera heights."""
+    floor = StructuralPlane(FLOOR, np.array([0.0, 0.0, 1.0]), 0.0, 12.0, np.array([[1.0, 0, 0], [0, 1.0, 0]]))
+    K = np.array([[60.0, 0, 48], [0, 60.0, 36], [0, 0, 1]])
+    depth = np.zeros((72, 96), np.float32)
+
+    def view(pitch_deg):  # camera at (2, 1.5, 1.5) facing +x, pitched down by pitch_deg
+        p = np.radians(pitch_deg)
+        forward = np.array([np.cos(p), 0.0, -np.sin(p)])
+        right = np.array([0.0, -1.0, 0.0])
+        pose = np.eye(4)
+        pose[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+        pose[:3, 3] = [2.0, 1.5, 1.5]
+        return PlainDepthView(depth, K, pose)
+
+    reach = 1.5 / np.tan(np.arctan(36 / 60))
+    behind = np.array([[2.0 - reach + 0.05, 1.5, 0.0], [2.0 - reach - 0.05, 1.5, 0.0]])
+    assert beneath_cameras(floor, behind, [view(0.0)]).tolist() == [True, False]
+    assert beneath_cameras(floor, np.array([[2.3, 1.5, 0.0]]), [view(60.0)]).tolist() == [False]
+    assert beneath_cameras(floor, np.array([[2.0 + 4.4, 1.5, 0.0], [2.0 + 4.6, 1.5, 0.0]]),
+                           [view(-60.0)]).tolist() == [True, False]
 
 
 def test_clean_flattens_and_adds_nothing(scene):
