@@ -20,7 +20,7 @@ from ..mesh_io import read_ply
 from ..tsdf.volume import TsdfVolume
 from .depth_metrics import DEPTH_METRIC_NAMES, capture_depth_views, mesh_depth_metrics
 from .mesh_metrics import MeshMetrics, evaluate_mesh
-from .room_box import fit_room_box, room_box_from_tsdf
+from .room_box import fit_room_box, room_box_from_tsdf, truth_tsdf_mesh
 from .surface_metrics import SURFACE_LEGEND, SurfaceMetrics, evaluate_surface, surface_table
 
 COLUMNS = ("acc", "comp", "prec", "recall", "fscore")
@@ -37,6 +37,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--threshold", type=float, default=0.05, help="precision/recall distance (m)")
     parser.add_argument("--down-sample", type=float, default=0.02, help="voxel down-sampling size (m)")
     parser.add_argument("--box-baseline", action="store_true", help="also score a plain box room fitted to the ground truth")
+    parser.add_argument("--truth-tsdf", action="store_true",
+                        help="also score the ground-truth TSDF meshed at its voxel size: what a perfect volumetric "
+                        "reconstruction of the observed space scores (the ceiling of the area ratio, under 1 on rooms "
+                        "with thin parts)")
     parser.add_argument("--depth", nargs="?", const=True, default=None, metavar="CAPTURE",
                         help="also the depth metrics against the depth maps of CAPTURE (default: the room "
                         "folder given as GT)")
@@ -81,6 +85,12 @@ def run(args: argparse.Namespace) -> int:
         box = room_box_from_tsdf(observed) if observed is not None else fit_room_box(gt.vertices)
         rows["room box baseline"] = score(box)
         surface_rows["room box baseline"] = score_surface(box)
+    if args.truth_tsdf:
+        if observed is None:
+            raise VortxError("--truth-tsdf needs the ground-truth TSDF: give a room folder with tsdf_gt.npz, or --observed")
+        reference = truth_tsdf_mesh(observed)
+        rows["truth's TSDF meshed"] = score(reference)
+        surface_rows["truth's TSDF meshed"] = score_surface(reference)
 
     trimmed = "none" if observed is None else ("prediction" if args.no_trim_gt else "prediction and ground truth")
     print(f"ground truth: {gt_path}   trimmed to observed voxels: {trimmed}")

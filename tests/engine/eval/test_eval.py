@@ -204,3 +204,36 @@ def test_eval_cli_depth_metrics_from_a_capture(tmp_path, capsys):
     # --depth with nothing to read depth maps from is an error the user can act on
     assert engine_main(["eval", str(tmp_path / "pred.ply"), str(tmp_path / "pred.ply"), "--depth"]) == 1
     assert "--depth needs a capture folder" in capsys.readouterr().err
+
+
+def test_the_truths_own_tsdf_meshed_is_scored_beside_the_prediction(tmp_path, capsys):
+    """`--truth-tsdf`: the ceiling of a volumetric method. A box room with a 1 cm thin panel in it: the
+    4 cm TSDF holds the walls but not the panel's two faces, so even this reference covers only the walls'
+    share of the true area, 59 of 61 m^2 (what a reader must know before judging an area ratio)."""
+    size, voxel, trunc = np.array([4.0, 3.0, 2.5]), 0.04, 0.12
+    room = box_mesh([0, 0, 0], size)
+    panel_v = np.array([[1, 1, 0.5], [2, 1, 0.5], [2, 1, 1.5], [1, 1, 1.5]], float)
+    panel_v = np.concatenate([panel_v, panel_v + [0, 0.01, 0]])
+    panel_f = np.array([[0, 1, 2], [0, 2, 3], [4, 6, 5], [4, 7, 6]]) + len(room.vertices)
+    truth = Mesh(np.concatenate([room.vertices, panel_v]).astype(np.float32),
+                 np.concatenate([room.faces, panel_f]).astype(np.int32))
+    origin = np.full(3, -0.2)
+    dims = np.ceil((size + 0.4) / voxel).astype(int) + 1
+    centres = origin + (np.stack(np.meshgrid(*[np.arange(d) for d in dims], indexing="ij"), -1)) * voxel
+    inside = np.minimum(centres, size - centres).min(-1)  # > 0 in the room: distance to the nearest wall
+    tsdf = np.clip(-inside / trunc, -1, 1).astype(np.float32)
+    weight = (inside > -0.15).astype(np.float32)
+    TsdfVolume(tsdf, weight, origin, voxel, trunc).save(tmp_path / "tsdf.npz")
+    write_ply(tmp_path / "gt.ply", truth.vertices, truth.faces)
+    write_ply(tmp_path / "pred.ply", room.vertices, room.faces)
+
+    rc = engine_main(["eval", str(tmp_path / "pred.ply"), str(tmp_path / "gt.ply"), "--observed",
+                      str(tmp_path / "tsdf.npz"), "--truth-tsdf", "--json", str(tmp_path / "m.json")])
+
+    assert rc == 0 and "truth's TSDF meshed" in capsys.readouterr().out
+    surface = json.loads((tmp_path / "m.json").read_text())["surface"]
+    assert surface["truth's TSDF meshed"]["area_ratio"] == pytest.approx(59 / 61, abs=0.015)
+    assert surface["pred.ply"]["area_ratio"] == pytest.approx(59 / 61, abs=0.005)
+    # Without the truth's TSDF there is no such row, and the user is told what to give.
+    assert engine_main(["eval", str(tmp_path / "pred.ply"), str(tmp_path / "gt.ply"), "--truth-tsdf"]) == 1
+    assert "--truth-tsdf needs the ground-truth TSDF" in capsys.readouterr().err
