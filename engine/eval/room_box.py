@@ -1,12 +1,7 @@
-"""Reference meshes for the scores: the "room box" baseline and the truth's own TSDF meshed.
+"""The "room box" baseline: a plain axis-aligned box room fitted to the scene.
 
-The room box (a plain axis-aligned box room fitted to the scene) is the floor we report beside real
-results: a method that does not beat an empty box has learned nothing about the room's contents.
-The truth's TSDF meshed at its own voxel size is the ceiling of a volumetric method: what a perfect
-fusion of the observed space scores. Its area ratio is not 1: a rendered room's thin two-sided parts
-mesh to one surface or none at 4 cm (37 % of room_07002's observed true surface, and of the demo
-room's, has an opposite-facing surface within 4 cm; their truths' TSDF meshes have area ratios 0.67
-and 0.64).
+Its F-score is the floor we report beside real results: a method that does not beat an empty box
+has learned nothing about the room's contents.
 """
 
 from __future__ import annotations
@@ -14,7 +9,6 @@ from __future__ import annotations
 import numpy as np
 
 from ..mesh_io import Mesh
-from ..recon.mesh import extract_mesh
 from ..tsdf.volume import TsdfVolume
 
 # Corner k of the box has coordinates (bit0 ? hi : lo) per axis.
@@ -74,9 +68,3 @@ def room_box_from_tsdf(volume: TsdfVolume) -> Mesh:
     """Room box fitted to the voxels next to a surface (|tsdf| < 0.5, i.e. within 6 cm) of a TSDF."""
     near = (np.abs(volume.tsdf) < 0.5) & volume.observed
     return fit_room_box(volume.positions()[near], bin_size=volume.voxel_size)
-
-
-def truth_tsdf_mesh(volume: TsdfVolume) -> Mesh:
-    """The zero level of a ground-truth TSDF over its observed voxels, at its voxel size (world metres)."""
-    observed = volume.observed
-    return extract_mesh(np.argwhere(observed), volume.tsdf[observed], volume.origin, volume.voxel_size)
