@@ -499,21 +499,34 @@ def _adjusted(
 def _resect_left_out(Ks: np.ndarray, best: Adjusted, tracks: Tracks, keypoint_of: np.ndarray, matches: Optional[dict],
                      constrained: np.ndarray, chosen_given: np.ndarray, options: RefineOptions) -> dict[int, Resection]:
     """{camera: Resection} for the unconstrained cameras (K,) that `resect.py` can pose from the points
-    their constrained neighbours observe, within max_rotation_deg of the given rotation.
+    their posed neighbours observe, within max_rotation_deg of the given rotation; in rounds, each
+    round's frames lending their agreeing observations to the next.
 
     best: the adjustment of `tracks` (whose observations' keypoint indices are keypoint_of, -1 unknown);
     chosen_given: (K, 4, 4) the given camera-to-world poses of the adjusted frames."""
     if matches is None or constrained.all() or (keypoint_of < 0).any():
         return {}
-    found = point_correspondences(tracks, best.inlier, keypoint_of, matches, constrained, ~constrained)
     resect_options = ResectOptions(min_inliers=options.min_points)
+    posed = constrained.copy()
+    camera, point, uv, keypoint, inlier = tracks.camera, tracks.point, tracks.uv, keypoint_of, best.inlier
     resected: dict[int, Resection] = {}
-    for k, (uv, point) in sorted(found.items()):
-        given_rotation = chosen_given[k, :3, :3].T
-        solved = resect_rotation(Ks[k], chosen_given[k, :3, 3], given_rotation, uv, best.points[point], resect_options,
-                                 np.random.default_rng(k))
-        if solved is not None and rotation_angle_deg(solved.rotation @ given_rotation.T) <= options.max_rotation_deg:
-            resected[k] = solved
+    for _ in range(resect_options.rounds):
+        found = point_correspondences(Tracks(camera, point, uv, best.points), inlier, keypoint, matches, posed, ~posed)
+        added = 0
+        for k, (keypoints, positions, points) in sorted(found.items()):
+            given_rotation = chosen_given[k, :3, :3].T
+            solved = resect_rotation(Ks[k], chosen_given[k, :3, 3], given_rotation, positions, best.points[points],
+                                     resect_options, np.random.default_rng(k))
+            if solved is None or rotation_angle_deg(solved.rotation @ given_rotation.T) > options.max_rotation_deg:
+                continue
+            resected[k], posed[k] = solved, True
+            agree = solved.inlier
+            camera = np.r_[camera, np.full(int(agree.sum()), k)]
+            point, uv = np.r_[point, points[agree]], np.r_[uv, positions[agree]]
+            keypoint, inlier = np.r_[keypoint, keypoints[agree]], np.r_[inlier, np.ones(int(agree.sum()), bool)]
+            added += 1
+        if not added:
+            break
     return resected
 
 

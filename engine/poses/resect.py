@@ -10,7 +10,8 @@ gauge the refinement keeps): RANSAC over two-point Wahba solutions, then a weigh
 inliers with a weak prior towards the given rotation, which pins the turn about the viewing direction
 when the points cluster in one part of the photo.
 
-- `point_correspondences(tracks, inlier, matches, posed, wanted) -> {camera: (uv (M, 2), point (M,))}`
+- `point_correspondences(tracks, inlier, obs_keypoint, matches, posed, wanted)
+   -> {camera: (keypoint (M,), uv (M, 2), point (M,))}`
 - `resect_rotation(K, centre, start_rotation, uv, points, options, rng) -> Resection | None`
 """
 
@@ -32,6 +33,9 @@ class ResectOptions:
     # The prior towards the given rotation weighs like one observation 1 px off when the rotation is
     # `prior_deg` away, as in the bundle adjustment (adjust.AdjustOptions.rotation_sigma_deg).
     prior_deg: float = 2.0
+    # Frames posed in one round lend their points to the next: a frame that matches only frames left
+    # out as well can follow them (room_05002: plain walls, chains of such frames).
+    rounds: int = 3
 
 
 @dataclass(frozen=True)
@@ -39,18 +43,19 @@ class Resection:
     rotation: np.ndarray  # (3, 3) world-to-camera rotation; the centre is the given one
     inliers: int  # correspondences within the threshold
     candidates: int  # correspondences tried
+    inlier: np.ndarray  # (candidates,) bool: which
 
 
 def point_correspondences(tracks: Tracks, inlier: np.ndarray, obs_keypoint: np.ndarray, matches: dict,
-                          posed: np.ndarray, wanted: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+                          posed: np.ndarray, wanted: np.ndarray) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Keypoints of each wanted camera matched to a keypoint that a posed camera observes a point with.
 
     tracks: the triangulated observations (O,) and their points; inlier: (O,) bool, observations the
     adjustment kept; obs_keypoint: (O,) keypoint index of each observation in its photo; matches: the
     worker's keypoints_uv (Σ, 2), keypoints_start (C + 1,), match_image (M, 2), match_keypoint (M, 2);
     posed: (C,) bool, cameras whose pose and points are trusted; wanted: (C,) bool, cameras to pose.
-    Returns {camera: (uv (N, 2) keypoint positions, point (N,) rows of tracks.points)}, one point per
-    keypoint (the one most of its matches agree on)."""
+    Returns {camera: (keypoint (N,) indices in its photo, uv (N, 2) their positions, point (N,) rows of
+    tracks.points)}, one point per keypoint (the one most of its matches agree on)."""
     start = np.asarray(matches["keypoints_start"], dtype=np.int64)
     keypoints_uv = np.asarray(matches["keypoints_uv"], dtype=np.float64).reshape(-1, 2)
     pair_image = np.asarray(matches["match_image"], dtype=np.int64).reshape(-1, 2)
@@ -79,10 +84,10 @@ def point_correspondences(tracks: Tracks, inlier: np.ndarray, obs_keypoint: np.n
     first = np.r_[True, pairs[1:, 0] != pairs[:-1, 0]]
     ids, points = pairs[first, 0], pairs[first, 1]
     camera = np.searchsorted(start, ids, side="right") - 1
-    found: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    found: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     for c in np.unique(camera):
         mine = camera == c
-        found[int(c)] = (keypoints_uv[ids[mine]], points[mine])
+        found[int(c)] = (ids[mine] - start[c], keypoints_uv[ids[mine]], points[mine])
     return found
 
 
@@ -131,7 +136,7 @@ def resect_rotation(K: np.ndarray, centre: np.ndarray, start_rotation: np.ndarra
         best = within(rotation)
         if best.sum() < options.min_inliers:
             return None
-    return Resection(rotation=rotation, inliers=int(best.sum()), candidates=count)
+    return Resection(rotation=rotation, inliers=int(best.sum()), candidates=count, inlier=best)
 
 
 def _wahba(bearing: np.ndarray, direction: np.ndarray, weight: Optional[np.ndarray] = None) -> np.ndarray:

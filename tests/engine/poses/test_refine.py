@@ -153,6 +153,58 @@ def synthetic_refinement(turn_deg: float = 1.0, wild: dict[int, float] | None = 
     return truth, given, refined
 
 
+def test_frames_left_out_are_posed_from_their_neighbours_points_in_a_chain():
+    """Frames 10 and 11 given poses 6 deg off: the triangulation kept none of their observations (as
+    COLMAP's 4 px filter does), but the worker's verified matches tie their keypoints to their
+    neighbours'. Frame 10 matches refined frames; frame 11 matches only frame 10, so it can be posed
+    only from what frame 10 lends it once posed itself."""
+    rng = np.random.default_rng(4)
+    rotations, centres, points = ring_room(rng, cameras=40)
+    truth = np.stack([np.block([[R.T, C[:, None]], [np.zeros((1, 3)), 1.0]]) for R, C in zip(rotations, centres)])
+    given = truth.copy()
+    turns = rodrigues(rng.normal(0.0, np.radians(1.0), (40, 3)))
+    turns[[10, 11]] = rodrigues(np.radians(6.0) * np.array([[0.0, 1.0, 0.0], [0.3, 0.9, 0.0]]))
+    given[:, :3, :3] = np.einsum("kij,kjl->kil", turns, truth[:, :3, :3])
+    tracks, _ = observe(rotations, centres, points, rng)
+    # Each photo's keypoints: its observations in order; matches between photos up to 3 apart.
+    keypoint = np.zeros(len(tracks.camera), np.int64)
+    for c in range(40):
+        mine = np.flatnonzero(tracks.camera == c)
+        keypoint[mine] = np.arange(len(mine))
+    pairs, pair_keypoints = [], []
+    for a in range(40):
+        for b in range(a + 1, a + 4):
+            b %= 40
+            if 11 in (a, b) and 10 not in (a, b):
+                continue  # frame 11 matches frame 10 only
+            in_a = dict(zip(tracks.point[tracks.camera == a], keypoint[tracks.camera == a]))
+            in_b = dict(zip(tracks.point[tracks.camera == b], keypoint[tracks.camera == b]))
+            shared = sorted(set(in_a) & set(in_b))
+            pairs += [[a, b]] * len(shared)
+            pair_keypoints += [[in_a[p], in_b[p]] for p in shared]
+    counts = np.bincount(tracks.camera, minlength=40)
+    order = np.argsort(tracks.camera, kind="stable")
+    triangulated = ~np.isin(tracks.camera, [10, 11])
+    frames = [Frame(Path(f"/c/{k:03d}.jpg"), 640, 480, TRACK_K.copy(), g) for k, g in enumerate(given)]
+    capture = Capture(Path("/c"), "transforms", frames, metric=True)
+    result = {"images": [], "num_points3D": len(points), "scale": [1.0, 1.0], "database": {"verified_pairs": 99},
+              "timings": {"extract": 1.0},
+              "tracks": {"obs_image": tracks.camera[triangulated], "obs_point": tracks.point[triangulated],
+                         "obs_uv": tracks.uv[triangulated], "obs_keypoint": keypoint[triangulated]},
+              "matches": {"keypoints_uv": tracks.uv[order], "keypoints_start": np.r_[0, np.cumsum(counts)],
+                          "match_image": np.array(pairs), "match_keypoint": np.array(pair_keypoints)}}
+    start = points + rng.normal(0.0, 0.02, points.shape)
+
+    refined = _adjusted(capture, list(range(40)), given, np.arange(40), result, start,
+                        np.zeros((len(points), 3), np.uint8), RefineOptions())
+
+    poses = [f.pose for f in refined.capture.frames]
+    assert refined.refined == [f.name for f in frames]
+    assert turned_deg(poses[10], truth[10]) < 0.1 and turned_deg(poses[11], truth[11]) < 0.1
+    assert np.array_equal(poses[11][:3, 3], given[11][:3, 3])
+    assert "2 frame(s) that too few triangulated points constrain were posed" in refined.report
+
+
 def turned_deg(a: np.ndarray, b: np.ndarray) -> float:
     return rotation_angle_deg(a[:3, :3].T @ b[:3, :3])
 

@@ -92,9 +92,9 @@ def test_correspondences_follow_the_verified_matches_to_the_points_the_posed_cam
     found = point_correspondences(tracks, np.ones(3, bool), np.array([0, 1, 0]), matches, posed, ~posed)
 
     assert set(found) == {1}
-    uv, point = found[1]
-    by_keypoint = {tuple(u): p for u, p in zip(uv, point)}
-    assert by_keypoint == {(6.0, 7.0): 5, (8.0, 9.0): 6, (4.0, 5.0): 6}
+    keypoint, uv, point = found[1]
+    assert {k: p for k, p in zip(keypoint, point)} == {3: 5, 4: 6, 2: 6}
+    np.testing.assert_array_equal(uv, keypoints[1][keypoint])
     # An observation the adjustment dropped is no correspondence.
     found = point_correspondences(tracks, np.array([False, True, True]), np.array([0, 1, 0]), matches, posed, ~posed)
-    assert {tuple(u): p for u, p in zip(*found[1])} == {(8.0, 9.0): 6, (4.0, 5.0): 6}
+    assert {k: p for k, p, in zip(found[1][0], found[1][2])} == {4: 6, 2: 6}
