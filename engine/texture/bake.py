@@ -45,8 +45,9 @@ from .views import TextureView, sharpness, sharpness_weights
 BORDER_RAMP = 0.05  # share of a photo's short side over which its weight fades out at the picture's edge
 TEXELS_PER_CHUNK = 1_000_000  # bounds each photo's per-texel temporaries to ~100 MB
 # Added faces (engine/finish) no photo saw take their colour from the seen texels nearest on their plane.
-NORMAL_METRES = 1.0  # m of distance a unit of normal difference counts as (a wall and the floor are 1.4 apart)
-NEIGHBOURS = 16  # the median of this many seen texels
+NORMAL_METRES = 10.0  # m of distance a unit of normal difference counts as (a wall and the floor are 14 apart)
+NEIGHBOURS = 64  # the weighted mean of this many cells of seen texels
+FILL_CELL = 0.1  # m: seen texels are pooled in cells this size; nearer cells weigh as if this far
 EDGE_MARGIN = 0.04  # m: seen texels this near unseen ones are not sources (an occluder's colour bleeds there)
 NEIGHBOUR_SAMPLES = 400_000
 
@@ -148,8 +149,9 @@ def neighbourhood_colours(points: np.ndarray, normals: np.ndarray, colours: np.n
 
     points, normals (N, 3): the texels' surface points and unit normals; colours (N, 3) linear; seen,
     fill (N,) bool. Nearness counts the normal as NORMAL_METRES of distance per unit of difference, so a
-    hidden stretch of wall takes the wall's colour around it, not the floor's or a cabinet's. The median of
-    the NEIGHBOURS nearest, leaving out seen texels within EDGE_MARGIN of unseen ones (samples of at most
+    hidden stretch of wall takes the wall's colour around it, not the floor's or a cabinet's. The mean of
+    the NEIGHBOURS nearest cells of seen texels (FILL_CELL, per normal axis) weighed by inverse square
+    distance, leaving out seen texels within EDGE_MARGIN of unseen ones (samples of at most
     NEIGHBOUR_SAMPLES texels keep the trees small)."""
     from scipy.spatial import cKDTree  # defers scipy: slow to import, only for added faces
 
@@ -164,12 +166,32 @@ def neighbourhood_colours(points: np.ndarray, normals: np.ndarray, colours: np.n
     distance, _ = cKDTree(points[unseen]).query(points[candidates], k=1, distance_upper_bound=EDGE_MARGIN)
     if np.isinf(distance).any():
         candidates = candidates[np.isinf(distance)]
-    features = np.concatenate([points, NORMAL_METRES * normals], axis=1)
-    tree = cKDTree(features[candidates])
-    k = min(NEIGHBOURS, len(candidates))
-    _, index = tree.query(features[fill], k=k)
-    index = np.asarray(index).reshape(-1, k)
-    return np.median(colours[candidates[index]], axis=1).astype(np.float32)
+    # The seen texels pooled into FILL_CELL cells (by position and the axis their normal is nearest):
+    # the sources of a fill are then spread over a patch, not the few texels at the nearest edge.
+    cell = np.floor(points[candidates] / FILL_CELL).astype(np.int64)
+    source_normal = normals[candidates]
+    dominant = np.argmax(np.abs(source_normal), axis=1)
+    facing = 2 * dominant + (source_normal[np.arange(len(candidates)), dominant] > 0)  # +-x, +-y, +-z: 0..5
+    _, pool, count = np.unique(np.c_[cell, facing], axis=0, return_inverse=True, return_counts=True)
+    pool = pool.ravel()
+
+    def pooled(values: np.ndarray) -> np.ndarray:
+        total = np.zeros((len(count), values.shape[1]))
+        np.add.at(total, pool, values)
+        return total / count[:, None]
+
+    source_points, source_colours = pooled(points[candidates]), pooled(colours[candidates])
+    source_normals = pooled(normals[candidates])
+    source_normals /= np.maximum(np.linalg.norm(source_normals, axis=1, keepdims=True), 1e-12)
+    tree = cKDTree(np.concatenate([source_points, NORMAL_METRES * source_normals], axis=1))
+    k = min(NEIGHBOURS, len(source_points))
+    distance, index = tree.query(np.concatenate([points[fill], NORMAL_METRES * normals[fill]], axis=1), k=k)
+    distance, index = np.asarray(distance).reshape(-1, k), np.asarray(index).reshape(-1, k)
+    # Weighed by inverse square distance, the colour changes smoothly across a large hidden stretch (the
+    # median of the nearest few texels was constant over each region that shares them: a patchwork of
+    # flat cells with straight edges over the floor under a camera path).
+    weight = 1.0 / np.maximum(distance, FILL_CELL) ** 2
+    return (np.einsum("mk,mkc->mc", weight, source_colours[index]) / weight.sum(axis=1, keepdims=True)).astype(np.float32)
 
 
 def bake_colours(mesh: Mesh, texels: Texels, views: Sequence[TextureView], options: TextureOptions,

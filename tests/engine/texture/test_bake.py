@@ -11,7 +11,7 @@ from engine.errors import VortxError
 from engine.jobs import CancelToken, Cancelled
 from engine.observation import ADDED
 from engine.recon.colour import ColourView, colour_vertices
-from engine.texture.bake import bake_texture, fill_gutters
+from engine.texture.bake import bake_texture, fill_gutters, neighbourhood_colours
 from engine.texture.options import TextureOptions
 from engine.texture.texels import rasterise_uv
 from fixtures_quads import join, solid, stripes, views_around, wall, Quad
@@ -146,3 +146,21 @@ def test_added_faces_no_photo_sees_take_their_planes_colour_not_black():
     np.testing.assert_allclose(rgb[hidden].mean(axis=0), (230, 204, 26), atol=25)
     on_added = (points[:, 0] > 1.9) & (np.abs(points[:, 1]) < 0.27)  # faces whose corners are all added
     assert rgb[on_added].max(axis=1).min() > 60  # no black texel on the added faces
+
+
+def test_a_large_hidden_stretch_blends_from_one_side_to_the_other_without_steps():
+    """A floor 2 m long, seen dark at one end and bright at the other, hidden in between (the floor under
+    a camera path): the fill goes from one colour to the other smoothly; the nearest few texels' median
+    gave a patchwork of flat cells, here a jump of the whole difference halfway."""
+    x, y = np.meshgrid(np.arange(0.0, 2.0, 0.01), np.arange(0.0, 0.5, 0.01), indexing="ij")
+    points = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    normals = np.tile([0.0, 0.0, 1.0], (len(points), 1))
+    seen = (points[:, 0] < 0.2) | (points[:, 0] >= 1.8)
+    colours = np.where(points[:, :1] < 1.0, 0.1, 0.9).astype(np.float32) * np.ones((1, 3), np.float32)
+
+    filled = neighbourhood_colours(points, normals, colours, seen, ~seen)
+
+    profile = np.array([filled[points[~seen, 0] == xv, 0].mean() for xv in np.unique(points[~seen, 0])])
+    assert profile[0] < 0.3 and profile[-1] > 0.7  # each end takes its side's colour
+    assert np.abs(np.diff(profile)).max() < 0.05  # no step between neighbouring centimetres
+    assert (np.diff(profile) > -1e-3).all()  # from dark to bright, not back
