@@ -27,4 +27,7 @@ def unregister() -> None:
     bpy.types.TOPBAR_MT_file_export.remove(menu_export)
     bpy.types.TOPBAR_MT_file_import.remove(menu_import)
     for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+        # Quitting a windowed Blender frees the panel types before it disables the add-ons: unregistering
+        # them again raised "missing bl_rna attribute" on every quit (Blender 4.3, a real window).
+        if cls.is_registered:
+            bpy.utils.unregister_class(cls)
