@@ -47,6 +47,7 @@ BEHIND_MARGIN = 0.2  # m behind a candidate wall before surface counts as "behin
 # wall behind it than its own area; a wall has at most what its windows and doors show of outside.
 MAX_BEHIND_SHARE = 1.0
 OPENING_CELL = 0.1  # m: the grid a candidate wall's own surface is rasterised on to find its openings
+MAX_OPENING_WIDTH = 2.0  # m: a gap in a wall's surface this wide, with wall on both sides, can be a door
 OPENING_CAMERAS = 24  # cameras (evenly spaced) whose sight lines test where surface behind a wall was seen through
 MAX_BELOW_FLOOR_SHARE = 3.0  # surface below a floor, as a share of its area (stereo's error puts some there)
 # ... counted down to this far below the floor: what a table top has below it (the floor, the walls'
@@ -373,6 +374,12 @@ def seen_through_openings(wall_uz: np.ndarray, behind: np.ndarray, cameras: np.n
     # Per column, the highest row with wall surface: an opening lies below it.
     rows = np.arange(shape[1])
     top = np.where(occupied.any(axis=1), np.max(np.where(occupied, rows[None, :], -1), axis=1), -1)
+    # Or wall surface on both sides in the same row, within a door's width: a door whose lintel stereo
+    # did not find (plain walls above 2 m often are not). Above a cabinet front nothing of it is beside.
+    columns = np.arange(shape[0])[:, None]
+    left = np.maximum.accumulate(np.where(occupied, columns, -1), axis=0)  # nearest occupied column at or left of each
+    right = np.minimum.accumulate(np.where(occupied, columns, shape[0])[::-1], axis=0)[::-1]
+    flanked = (left >= 0) & (right < shape[0]) & (right - left <= int(np.ceil(MAX_OPENING_WIDTH / OPENING_CELL)))
     in_front = cameras[cameras @ direction > offset + 1e-3]
     if len(in_front) > OPENING_CAMERAS:
         in_front = in_front[np.round(np.linspace(0, len(in_front) - 1, OPENING_CAMERAS)).astype(np.int64)]
@@ -384,7 +391,7 @@ def seen_through_openings(wall_uz: np.ndarray, behind: np.ndarray, cameras: np.n
         cell = np.floor((np.stack([crossing @ u_axis, crossing[:, 2]], axis=1) - origin) / OPENING_CELL).astype(np.int64)
         inside = (cell[:, 0] >= 0) & (cell[:, 0] < shape[0]) & (cell[:, 1] >= 0) & (cell[:, 1] < shape[1])
         col, row = np.where(inside, cell[:, 0], 0), np.where(inside, cell[:, 1], 0)
-        through |= inside & ~occupied[col, row] & (top[col] > row)
+        through |= inside & ~occupied[col, row] & ((top[col] > row) | flanked[col, row])
     return through
 
 
