@@ -195,6 +195,9 @@ def test_demo_sample_scale_from_the_floor_plane_within_one_percent():
     assert "floor plane from" in alignment.description and f"world: {alignment.description}" in result.report
     posed = [f for f in result.capture.frames if f.pose is not None]
     errors = pose_errors([f.pose for f in posed], [truth[f.image_path.stem] for f in posed])
-    assert errors["scale"] == pytest.approx(1.0, abs=0.01)  # truth metres per estimated metre
+    # Once in about 30 SfM runs (2026-12-04) the scale came out 0.816 with a report like the good ones;
+    # the message keeps what would tell why (a distorted model, or a floor found too high).
+    heights = {f.image_path.stem: round(float(f.pose[2, 3] - truth[f.image_path.stem][2, 3]), 3) for f in posed}
+    assert errors["scale"] == pytest.approx(1.0, abs=0.01), f"{errors}\nheight errors (m): {heights}"  # truth m per estimated m
     # Z up, floor at z = 0, metres: each camera's height above the floor is its true height.
     assert np.median(np.abs([f.pose[2, 3] - truth[f.image_path.stem][2, 3] for f in posed])) < 0.02
