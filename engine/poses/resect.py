@@ -128,10 +128,10 @@ def resect_rotation(K: np.ndarray, centre: np.ndarray, start_rotation: np.ndarra
     # The prior: the given camera axes as three extra correspondences, each weighing like an observation
     # 1 px off when the rotation is prior_deg away.
     prior_weight = (1.0 / (focal * np.radians(options.prior_deg))) ** 2
-    axes_world = np.asarray(start_rotation, dtype=np.float64).T  # column k: camera axis k in the world
-    rotation = np.asarray(start_rotation, dtype=np.float64)
+    given = np.asarray(start_rotation, dtype=np.float64)  # row k: camera axis k in the world
+    rotation = given
     for _ in range(3):
-        rotation = _wahba(np.r_[bearing[best], np.eye(3)], np.r_[direction[best], axes_world.T],
+        rotation = _wahba(np.r_[bearing[best], np.eye(3)], np.r_[direction[best], given],
                           np.r_[np.ones(int(best.sum())), np.full(3, prior_weight)])
         best = within(rotation)
         if best.sum() < options.min_inliers:
