@@ -52,6 +52,8 @@ def describe(capture: Capture) -> dict[str, Any]:
         "frames_with_intrinsics": len(with_K),
         "intrinsics": shared_K,
         "frames_with_depth": sum(f.depth_path is not None for f in frames),
+        "frames_with_sensor_depth": capture.frames_with_sensor_depth,
+        "pose_origin": capture.pose_origin,
         "metric": capture.metric,
         "first_image": str(frames[0].image_path) if frames else None,
         "warnings": list(capture.warnings),
@@ -74,12 +76,16 @@ def format_text(summary: dict[str, Any]) -> str:
         f"format      {summary['format']}",
         f"frames      {frames}",
         f"resolution  {summary['width']} x {summary['height']}",
-        f"poses       {summary['posed_frames']} of {frames} frames",
+        f"poses       {summary['posed_frames']} of {frames} frames"
+        + (f", {summary['pose_origin']}" if summary["pose_origin"] else ""),
         f"intrinsics  {intrinsics}",
         f"metric      {'yes (metres)' if summary['metric'] else 'no (scale set by the poses stage)'}",
     ]
     if summary["frames_with_depth"]:
-        lines.append(f"depth       {summary['frames_with_depth']} of {frames} frames")
+        lines.append(f"depth       {summary['frames_with_depth']} of {frames} frames (ground truth, not an input)")
+    if summary["frames_with_sensor_depth"]:
+        lines.append(f"sensor      depth maps for {summary['frames_with_sensor_depth']} of {frames} frames "
+                     "(used by the reconstruction)")
     for note in summary["notes"]:
         lines.append(f"note        {note}")
     lines.append(f"warnings    {len(summary['warnings'])}")

@@ -1,11 +1,13 @@
 """Which on-disk layout a capture path is, decided from file names only (nothing is parsed).
 
 Order of precedence for a folder, first match wins:
+0. a phone scanning app's export (`PHONE_EXPORTS`: 3D Scanner App "All Data", ...)
 1. `transforms.json` in it            -> "transforms" (instant-ngp / nerfstudio)
 2. `color/` and `pose/` sub-folders   -> "scannet"
 3. a COLMAP model (`sparse/<n>/`, `sparse/`, `colmap/sparse/<n>/` or the folder itself) -> "colmap"
 4. JPEG/PNG photos in it or in `images/` -> "images"
-A file: a video (.mp4 .mov .avi .m4v .mkv, any case) -> "video"; a .json file -> "transforms".
+A file: a video (.mp4 .mov .avi .m4v .mkv, any case) -> "video"; a .json file -> "transforms"; a zip
+(.zip, Record3D's .r3d) is unpacked by `load_capture` first and its folder detected (`archive.py`).
 A folder that has both transforms.json and a COLMAP model (nerfstudio's output) loads the former;
 pass `format="colmap"` to choose the other.
 """
@@ -13,18 +15,26 @@ pass `format="colmap"` to choose the other.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Callable
 
 from ..errors import CaptureError
+from .archive import ARCHIVE_SUFFIXES
 from .colmap import find_model_folders
 from .folder import photo_folder
 from .images import IMAGE_SUFFIXES
 from .naming import name_list
 from .scannet import is_scannet_folder
+from .scanner_app import is_scanner_app_folder
 from .video import VIDEO_SUFFIXES, is_video_file
 
-FORMATS = ("images", "colmap", "transforms", "scannet", "video")
+# Phone scanning apps' exports (ARKit poses, often LiDAR depth): format name -> folder test.
+PHONE_EXPORTS: dict[str, Callable[[Path], bool]] = {
+    "3dscannerapp": is_scanner_app_folder,
+}
+FORMATS = ("images", "colmap", "transforms", "scannet", "video", *PHONE_EXPORTS)
 _WHAT_IS_ACCEPTED = ("a folder of JPEG/PNG photos (or with an images/ sub-folder), a COLMAP project (sparse/ + "
-                     "images/), a folder with transforms.json, a ScanNet export (color/ + pose/) or a video file")
+                     "images/), a folder with transforms.json, a ScanNet export (color/ + pose/), a video file, or "
+                     "a phone app's export (3D Scanner App, Stray Scanner, Record3D, Polycam: the folder or its zip)")
 
 
 def detect_format(path: Path) -> str:
@@ -37,6 +47,8 @@ def detect_format(path: Path) -> str:
             return "video"
         if suffix == ".json":
             return "transforms"
+        if suffix in ARCHIVE_SUFFIXES:
+            raise CaptureError(f"{path} is an archive: load_capture unpacks it first (engine.capture.archive).")
         if suffix in IMAGE_SUFFIXES:
             raise CaptureError(f"{path} is a single photo: choose the folder holding all the photos of the room.")
         raise CaptureError(f"{path} is not a capture (a {suffix or 'suffix-less'} file): choose {_WHAT_IS_ACCEPTED}.")
@@ -44,6 +56,9 @@ def detect_format(path: Path) -> str:
         entries = [p for p in path.iterdir() if not p.name.startswith(".")]
     except OSError as error:
         raise CaptureError(f"cannot list folder {path}: {error.strerror or error}.") from error
+    for name, is_export in PHONE_EXPORTS.items():
+        if is_export(path):
+            return name
     if (path / "transforms.json").is_file():
         return "transforms"
     if is_scannet_folder(path):

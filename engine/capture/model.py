@@ -14,6 +14,19 @@ from typing import Optional
 import numpy as np
 
 
+@dataclass(frozen=True)
+class SensorDepth:
+    """A depth sensor's map of one frame (a phone's LiDAR), registered to that frame's photo: the same
+    camera, at any resolution of the photo's aspect ratio (K scales with it). An input of the
+    reconstruction, unlike `Frame.depth_path`, which is ground truth for evaluation only.
+    Read with `engine.capture.sensor_depth.read_sensor_depth`."""
+
+    path: Path
+    encoding: str  # one of sensor_depth.ENCODINGS: "png_mm" (16-bit millimetres), "r3d" (LZFSE float32 metres)
+    confidence_path: Optional[Path] = None  # per-pixel confidence, ARKit's 0 low / 1 medium / 2 high
+    size: Optional[tuple[int, int]] = None  # (width, height), for encodings that do not store it ("r3d")
+
+
 @dataclass
 class Frame:
     image_path: Path
@@ -21,7 +34,8 @@ class Frame:
     height: int
     K: Optional[np.ndarray]  # (3, 3) float64, or None until intrinsics are known (plain photo folder)
     pose: Optional[np.ndarray] = None  # (4, 4) float64 camera-to-world, OpenCV axes, or None
-    depth_path: Optional[Path] = None  # metric depth (ScanNet-style 16-bit mm PNG) when the capture has it
+    depth_path: Optional[Path] = None  # ground-truth metric depth (ScanNet-style 16-bit mm PNG), evaluation only
+    sensor_depth: Optional[SensorDepth] = None  # the phone's own depth map, used by the reconstruction
 
     @property
     def name(self) -> str:
@@ -46,6 +60,13 @@ class Capture:
     # the poses must move them too (`with_points`), so a transform that only replaces frames drops them.
     points: Optional[np.ndarray] = None  # (N, 3) float64, or None when the capture has none
     point_colors: Optional[np.ndarray] = None  # (N, 3) uint8 RGB, with `points`
+    # Who made the poses, when the format says it: "ARKit (3D Scanner App)". Reports say it beside the
+    # pose count; "" for formats that do not say (a COLMAP model, a transforms.json).
+    pose_origin: str = ""
+
+    @property
+    def frames_with_sensor_depth(self) -> int:
+        return sum(f.sensor_depth is not None for f in self.frames)
 
     @property
     def posed_frames(self) -> list[Frame]:

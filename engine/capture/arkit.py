@@ -1,0 +1,51 @@
+"""ARKit's camera and world conventions, mapped to the engine's in this one place.
+
+Every iPhone/iPad scanning app (3D Scanner App, Stray Scanner, Record3D, Polycam) exports ARKit's
+own tracking:
+- a camera-to-world transform per frame, camera axes x right, y up, z backward (OpenGL's);
+- a world in metres with gravity along -y (y up), x and z horizontal, its origin and heading where
+  the session started;
+- intrinsics in pixels of the captured image in the sensor's landscape orientation.
+The engine's world is Z up with OpenCV camera axes (x right, y down, z forward), so
+
+    pose_engine = Y_UP_TO_Z_UP @ pose_arkit @ diag(1, -1, -1, 1)
+
+which keeps the scale (metres) and turns ARKit's up (+y) into the engine's (+Z).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import opengl_to_opencv, quaternion_to_rotation
+
+# World rotation taking ARKit's y-up axes to the engine's Z up: x -> x, y -> z, z -> -y (a rotation
+# of +90 deg about x; determinant +1, so handedness is kept).
+Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0, 0.0],
+                         [0.0, 0.0, -1.0, 0.0],
+                         [0.0, 1.0, 0.0, 0.0],
+                         [0.0, 0.0, 0.0, 1.0]])
+
+ARKIT_POSES = "ARKit"  # Capture.pose_origin prefix: "ARKit (3D Scanner App)"
+
+
+def pose_origin(app: str) -> str:
+    """What reports say made a phone app's poses: "ARKit (3D Scanner App)"."""
+    return f"{ARKIT_POSES} ({app})"
+
+
+def arkit_to_engine(pose: np.ndarray) -> np.ndarray:
+    """(4, 4) float64 engine pose (OpenCV camera axes, Z-up world) of an ARKit camera-to-world
+    transform (4, 4): camera x right / y up / z backward, world y up, metres."""
+    return Y_UP_TO_Z_UP @ opengl_to_opencv(np.asarray(pose, dtype=np.float64))
+
+
+def transform_from_quaternion_xyzw(quaternion_xyzw: np.ndarray, position: np.ndarray) -> np.ndarray:
+    """(4, 4) camera-to-world from a rotation quaternion (4,) ordered (x, y, z, w), as ARKit-based apps
+    write it, and a position (3,). Not normalised here: callers check |q| so a corrupt line is refused
+    (`geometry.quaternion_deviation`)."""
+    x, y, z, w = np.asarray(quaternion_xyzw, dtype=np.float64)
+    transform = np.eye(4)
+    transform[:3, :3] = quaternion_to_rotation(np.array([w, x, y, z]))  # takes COLMAP's (w, x, y, z)
+    transform[:3, 3] = np.asarray(position, dtype=np.float64)
+    return transform
