@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "eval-scale": (".eval.scale_eval", "metric scale from the photos alone against rooms' true poses"),
     "eval-weights": (".eval.heldout", "reconstruct held-out rendered rooms with trained weights and score them"),
     "eval-texture": (".eval.texture_cli", "texture vs vertex colours from held-out photos (PSNR, SSIM)"),
+    "eval-sensor": (".eval.sensor_heldout", "a phone capture's result against its own held-out LiDAR depth"),
 }
 
 

@@ -34,7 +34,7 @@ from ..vortx_blender.properties import POSES_REFINED, recon_field, recon_propert
 from ..vortx_blender.scale import picked_points, set_scale
 
 # Files a capture can be chosen by; a folder is chosen by accepting the browser with no file selected.
-CAPTURE_FILE_GLOB = "*.json;*.txt;*.mp4;*.mov;*.m4v;*.avi;*.mkv;*.webm"
+CAPTURE_FILE_GLOB = "*.json;*.txt;*.mp4;*.mov;*.m4v;*.avi;*.mkv;*.webm;*.zip;*.r3d"
 
 
 def _report_applied(op: bpy.types.Operator, summary: str, warnings: list[str]) -> None:
@@ -44,7 +44,7 @@ def _report_applied(op: bpy.types.Operator, summary: str, warnings: list[str]) -
 
 
 class VORTX_OT_import_capture(JobOperatorMixin, bpy.types.Operator):
-    """Import photos of a room (a folder, transforms.json, COLMAP or ScanNet layout, or a video) and create cameras for posed photos"""
+    """Import photos of a room (a folder, transforms.json, COLMAP or ScanNet layout, a video, or a phone app's export or its zip) and create cameras for posed photos"""
 
     bl_idname = "vortx.import_capture"
     bl_label = "Import Capture"
@@ -70,7 +70,7 @@ class VORTX_OT_import_capture(JobOperatorMixin, bpy.types.Operator):
     def make_job_function(self, context: bpy.types.Context) -> JobFunction:
         path = resolve_capture_path(self.filepath, self.directory)
         if path is None:
-            raise CaptureError("Choose a capture folder or file (transforms.json, a video, ...)")
+            raise CaptureError("Choose a capture folder or file (transforms.json, a video, a phone app's .zip, ...)")
         self._path = path
         settings = context.scene.vortx
         self._frame = self.output_frame if self.properties.is_property_set("output_frame") else settings.output_frame

@@ -85,7 +85,7 @@ def apply_prepared(scene: "bpy.types.Scene", prepared: PreparedCapture, path: os
                          scale_uncertainty=prepared.scale.relative_sigma if prepared.scale is not None else 0.0,
                          pose_check=prepared.pose_check.message if prepared.pose_check is not None
                          and prepared.pose_check.poses_off else "",
-                         pose_source=POSES_BY_SFM if prepared.ran_sfm else POSES_GIVEN)
+                         pose_source=POSES_BY_SFM if prepared.ran_sfm else (capture.pose_origin or POSES_GIVEN))
 
 
 def scene_camera_height(settings: object) -> float:

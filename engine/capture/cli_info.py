@@ -54,6 +54,7 @@ def describe(capture: Capture) -> dict[str, Any]:
         "frames_with_depth": sum(f.depth_path is not None for f in frames),
         "frames_with_sensor_depth": capture.frames_with_sensor_depth,
         "pose_origin": capture.pose_origin,
+        "points": 0 if capture.points is None else int(len(capture.points)),
         "metric": capture.metric,
         "first_image": str(frames[0].image_path) if frames else None,
         "warnings": list(capture.warnings),
@@ -86,6 +87,8 @@ def format_text(summary: dict[str, Any]) -> str:
     if summary["frames_with_sensor_depth"]:
         lines.append(f"sensor      depth maps for {summary['frames_with_sensor_depth']} of {frames} frames "
                      "(used by the reconstruction)")
+    if summary["points"]:
+        lines.append(f"points      {summary['points']}" + (" (from the sensor depth)" if summary["frames_with_sensor_depth"] else ""))
     for note in summary["notes"]:
         lines.append(f"note        {note}")
     lines.append(f"warnings    {len(summary['warnings'])}")

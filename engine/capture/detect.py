@@ -23,13 +23,19 @@ from .colmap import find_model_folders
 from .folder import photo_folder
 from .images import IMAGE_SUFFIXES
 from .naming import name_list
+from .polycam import is_polycam_folder
+from .record3d import is_record3d_folder
 from .scannet import is_scannet_folder
 from .scanner_app import is_scanner_app_folder
+from .stray_scanner import is_stray_scanner_folder
 from .video import VIDEO_SUFFIXES, is_video_file
 
 # Phone scanning apps' exports (ARKit poses, often LiDAR depth): format name -> folder test.
 PHONE_EXPORTS: dict[str, Callable[[Path], bool]] = {
     "3dscannerapp": is_scanner_app_folder,
+    "strayscanner": is_stray_scanner_folder,
+    "record3d": is_record3d_folder,
+    "polycam": is_polycam_folder,
 }
 FORMATS = ("images", "colmap", "transforms", "scannet", "video", *PHONE_EXPORTS)
 _WHAT_IS_ACCEPTED = ("a folder of JPEG/PNG photos (or with an images/ sub-folder), a COLMAP project (sparse/ + "

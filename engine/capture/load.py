@@ -13,8 +13,12 @@ from .detect import FORMATS, detect_format
 from .folder import load_photo_folder
 from .model import Capture
 from .options import LoadOptions
+from .polycam import load_polycam
+from .record3d import load_record3d
 from .scannet import load_scannet
+from .sensor_depth import sensor_points
 from .scanner_app import load_scanner_app
+from .stray_scanner import load_stray_scanner
 from .transforms_json import load_transforms
 from .video import load_video
 
@@ -25,6 +29,9 @@ _LOADERS: dict[str, Callable[..., Capture]] = {
     "scannet": load_scannet,
     "video": load_video,
     "3dscannerapp": load_scanner_app,
+    "strayscanner": load_stray_scanner,
+    "record3d": load_record3d,
+    "polycam": load_polycam,
 }
 
 
@@ -51,6 +58,9 @@ def load_capture(path: Path | str, *, format: Optional[str] = None, progress: Op
     elif not path.exists():
         detect_format(path)  # raises the "does not exist" message
     capture = _LOADERS[format](path, load_options, progress=progress, cancel=cancel)
+    if capture.points is None and capture.frames_with_sensor_depth:
+        # A phone's depth is the capture's point cloud (shown on import; tight stereo depth ranges).
+        capture = capture.with_points(*sensor_points(capture.frames))
     if archive is not None:
         capture.notes.append(f"{archive.name} unpacked into {path}")
     return capture

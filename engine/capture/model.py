@@ -25,6 +25,9 @@ class SensorDepth:
     encoding: str  # one of sensor_depth.ENCODINGS: "png_mm" (16-bit millimetres), "r3d" (LZFSE float32 metres)
     confidence_path: Optional[Path] = None  # per-pixel confidence, ARKit's 0 low / 1 medium / 2 high
     size: Optional[tuple[int, int]] = None  # (width, height), for encodings that do not store it ("r3d")
+    # The stored value of "high" confidence: 2 for ARKit's levels as most apps store them, 255 for
+    # Polycam's 0 / 127 / 255; read back as ARKit's 0 / 1 / 2 either way.
+    confidence_high: int = 2
 
 
 @dataclass

@@ -5,7 +5,8 @@ Encodings, as the apps write them:
   Polycam); its confidence a uint8 PNG of the same size.
 - "r3d": Record3D's `.depth`, an LZFSE-compressed float32 array in metres of the export's depth size
   (NaN or 0 = no depth); its `.conf` an LZFSE-compressed uint8 array.
-Confidence follows ARKit's ARConfidenceLevel: 0 low, 1 medium, 2 high.
+Confidence is read as ARKit's ARConfidenceLevel: 0 low, 1 medium, 2 high (Polycam stores 0 / 127 / 255,
+`SensorDepth.confidence_high` says so).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ def read_sensor_depth(sensor: SensorDepth) -> tuple[np.ndarray, Optional[np.ndar
     """
     if sensor.encoding == "png_mm":
         depth = _read_png(sensor.path, np.uint16, "a 16-bit PNG in millimetres").astype(np.float32) / 1000.0
-        confidence = (_read_png(sensor.confidence_path, np.uint8, "an 8-bit PNG of ARKit confidence (0, 1, 2)")
+        confidence = (_read_png(sensor.confidence_path, np.uint8, "an 8-bit PNG of per-pixel confidence")
                       if sensor.confidence_path is not None else None)
     elif sensor.encoding == "r3d":
         if sensor.size is None:
@@ -47,12 +48,14 @@ def read_sensor_depth(sensor: SensorDepth) -> tuple[np.ndarray, Optional[np.ndar
         raise CaptureError(f"confidence map {sensor.confidence_path} is {confidence.shape[1]} x {confidence.shape[0]} "
                            f"but its depth map {sensor.path.name} is {depth.shape[1]} x {depth.shape[0]}: re-export "
                            "the capture, or remove both files.")
+    if confidence is not None and sensor.confidence_high != HIGH_CONFIDENCE:  # to ARKit's levels: 127 -> 1, 255 -> 2
+        confidence = np.round(confidence.astype(np.float32) * HIGH_CONFIDENCE / sensor.confidence_high).astype(np.uint8)
     depth = np.where(np.isfinite(depth) & (depth > 0) & (depth < MAX_SENSOR_DEPTH_M), depth, 0.0).astype(np.float32)
     return depth, confidence
 
 
 def _read_png(path: Path, dtype: type, what: str) -> np.ndarray:
-    import cv2  # deferred: the light paths do not need OpenCV
+    import cv2  # defers cv2 (OpenCV) off the light paths
 
     try:
         data = np.fromfile(str(path), dtype=np.uint8)
@@ -67,14 +70,14 @@ def _read_png(path: Path, dtype: type, what: str) -> np.ndarray:
 
 def _read_lzfse(path: Path, dtype: type, size: tuple[int, int]) -> np.ndarray:
     try:
-        import liblzfse
-    except ImportError as error:  # pragma: no cover - a pinned dependency
-        raise CaptureError("reading Record3D depth needs the pyliblzfse package (pip install pyliblzfse)") from error
+        import lzfse  # defers lzfse: only Record3D exports need it
+    except ImportError as error:  # a pinned dependency; a hand-made environment may lack it
+        raise CaptureError("reading Record3D depth needs the lzfse package (pip install lzfse)") from error
     try:
-        raw = liblzfse.decompress(path.read_bytes())
+        raw = lzfse.decompress(path.read_bytes())
     except OSError as error:
         raise CaptureError(f"cannot read depth file {path}: {error.strerror or error}") from error
-    except Exception as error:  # liblzfse raises its own error type for a corrupt stream
+    except Exception as error:  # lzfse raises its own error type for a corrupt stream
         raise CaptureError(f"{path} is not an LZFSE-compressed Record3D depth file ({error}): re-export the "
                            "capture, or remove the file to use its photo without depth.") from error
     width, height = size
@@ -95,11 +98,60 @@ def check_sensor_depths(frames: list[Frame], warnings: list[str]) -> list[Frame]
         if frame.sensor_depth is not None:
             try:
                 read_sensor_depth(frame.sensor_depth)
-            except CaptureError as error:
-                broken.append(f"{frame.sensor_depth.path.name} ({str(error).split(':')[0]})")
+            except CaptureError:
+                broken.append(frame.sensor_depth.path.name)
                 frame = replace(frame, sensor_depth=None)
         kept.append(frame)
     if broken:
-        warnings.append(f"{len(broken)} depth map(s) could not be read, their photos are used without depth: "
-                        f"{name_list(broken)}")
+        warnings.append(f"{len(broken)} depth map(s) are corrupt or of another kind, their photos are used without "
+                        f"depth: {name_list(broken)} (re-export the capture to keep their depth)")
     return kept
+
+
+POINT_STRIDE = 8  # every 8th depth pixel each way: 768 points from a 256 x 192 map
+MAX_SENSOR_POINTS = 200_000
+
+
+def sensor_points(frames: list[Frame]) -> tuple[np.ndarray, np.ndarray]:
+    """(points (N, 3) float64 world, colours (N, 3) uint8 RGB) from the frames' confident sensor depth,
+    every POINT_STRIDE-th pixel, at most MAX_SENSOR_POINTS (evenly thinned): the capture's point cloud,
+    as SfM's sparse points are for photos alone. Frames whose depth or photo cannot be read add none."""
+    import cv2  # defers cv2 (OpenCV) off the light paths
+
+    posed = [f for f in frames if f.sensor_depth is not None and f.pose is not None and f.K is not None]
+    points, colours = [], []
+    for frame in posed:
+        try:
+            depth, confidence = read_sensor_depth(frame.sensor_depth)
+        except CaptureError:
+            continue
+        h, w = depth.shape
+        keep = depth > 0
+        if confidence is not None:
+            keep &= confidence >= HIGH_CONFIDENCE
+        grid = np.zeros_like(keep)
+        grid[POINT_STRIDE // 2::POINT_STRIDE, POINT_STRIDE // 2::POINT_STRIDE] = True
+        v, u = np.nonzero(keep & grid)
+        if len(v) == 0:
+            continue
+        sx, sy = w / frame.width, h / frame.height  # the depth map is the photo at another size
+        K = frame.K * np.array([[sx], [sy], [1.0]])
+        z = depth[v, u].astype(np.float64)
+        rays = np.linalg.inv(K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
+        points.append((frame.pose[:3, :3] @ (rays * z) + frame.pose[:3, 3:4]).T)
+        # Colours from an eighth-size decode of the photo: a point needs one pixel, not 1920 x 1440.
+        bgr = cv2.imread(str(frame.image_path), cv2.IMREAD_REDUCED_COLOR_8)
+        if bgr is None:
+            colours.append(np.full((len(v), 3), 128, np.uint8))
+            continue
+        ph, pw = bgr.shape[:2]
+        cols = np.clip(((u + 0.5) / w * pw).astype(int), 0, pw - 1)
+        rows = np.clip(((v + 0.5) / h * ph).astype(int), 0, ph - 1)
+        colours.append(bgr[rows, cols, ::-1])
+    if not points:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+    all_points, all_colours = np.concatenate(points), np.concatenate(colours).astype(np.uint8)
+    if len(all_points) > MAX_SENSOR_POINTS:
+        chosen = np.linspace(0, len(all_points) - 1, MAX_SENSOR_POINTS).astype(np.int64)
+        all_points, all_colours = all_points[chosen], all_colours[chosen]
+    return all_points, all_colours

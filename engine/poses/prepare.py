@@ -131,8 +131,9 @@ class PreparedCapture:
             scale = f"scaled by the {self.scale.source}, +-{100 * self.scale.relative_sigma:.0f} %"
         if self.ran_sfm:
             return f"{posed} of {total} posed by SfM, {scale}"
-        status = f"All {total} posed ({capture.format})" if posed == total else f"{posed} of {total} posed ({capture.format})"
-        return status if self.scale_source == "metric capture" else f"{status}, Z up, {scale}"
+        origin = capture.pose_origin or capture.format  # "ARKit (3D Scanner App)" says more than a format name
+        status = f"All {total} posed ({origin})" if posed == total else f"{posed} of {total} posed ({origin})"
+        return f"{status}, metric" if self.scale_source == "metric capture" else f"{status}, Z up, {scale}"
 
 
 def prepare_capture(

@@ -167,6 +167,12 @@ class ReconSettings:
         "filters most outliers, and a strict check loses more surface than noise)",
         (CLI, BLENDER), methods=("stereo", STEREO_EVIDENCE_WEIGHTS), min=0, max=10, label="Consistency")
 
+    sensor_depth: bool = setting(
+        StereoOptions.sensor_depth, "use the depth maps a phone's LiDAR recorded with the photos (3D Scanner App, Stray "
+        "Scanner, Record3D, Polycam exports) where their confidence is high; stereo fills the rest (beyond about 5 m, "
+        "thin things). Captures without sensor depth are unaffected", (CLI, BLENDER),
+        methods=("stereo", STEREO_EVIDENCE_WEIGHTS), label="Sensor Depth")
+
     # The finishing stage (engine/finish): planes found, flattened and closed, unsupported pieces dropped.
     finish: str = setting(
         FINISH_ROOM, "how the mesh is finished for VR: 'room' = floor, ceiling and walls found, flattened onto their "

@@ -18,6 +18,7 @@ from ..jobs import CancelToken, ProgressCallback, check, report
 from ..stereo.depth_maps import estimate_depth_maps, stereo_references
 from ..stereo.fused_tsdf import fuse_depth_maps
 from ..stereo.options import StereoOptions
+from ..stereo.sensor_merge import SensorMergeCount, merge_sensor_maps
 from ..stereo.depth_maps import DepthMap
 from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS, drop_unsupported_pieces, fuse_stereo_evidence
 from ..stereo.vertex_evidence import attach_evidence
@@ -41,6 +42,7 @@ def stereo_options(settings: ReconSettings, device: torch.device) -> StereoOptio
                          sources=settings.stereo_sources,
                          best_k=max(1, settings.stereo_sources // 2), min_ncc=settings.stereo_min_ncc,
                          max_references=settings.stereo_views, consistency_views=settings.stereo_consistency,
+                         sensor_depth=settings.sensor_depth,
                          min_depth=min(StereoOptions.min_depth, 0.5 * settings.frustum_depth),
                          max_depth=1.25 * settings.frustum_depth, device=str(device))
 
@@ -49,10 +51,13 @@ def stereo_depth_maps(
     capture: Capture, plan: ReconPlan, options: StereoOptions,
     progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
     stages: Optional[dict[str, float]] = None,
+    sensor_counts: Optional[SensorMergeCount] = None,
 ) -> list[DepthMap]:
     """Depth maps of (up to `options.max_references`) keyframes; sources come from every posed frame
     (the sweep) or from the other keyframes (PatchMatch, whose geometric passes need their maps).
-    `stages` receives the matcher's stage seconds.
+    `stages` receives the matcher's stage seconds. Keyframes with sensor depth (a phone's LiDAR) have
+    it merged in when `options.sensor_depth` (stereo/sensor_merge.py); `sensor_counts` receives how
+    many pixels came from the sensor.
 
     DepthMap.frame indexes `plan.keyframes`.
     """
@@ -69,6 +74,8 @@ def stereo_depth_maps(
                                cancel=cancel, stages=stages)
     for m, k in zip(maps, chosen):
         m.frame = int(k)
+    if options.sensor_depth and any(f.sensor_depth is not None for f in plan.keyframes):
+        maps = merge_sensor_maps(maps, plan.keyframes, sensor_counts if sensor_counts is not None else SensorMergeCount())
     return maps
 
 
@@ -152,7 +159,8 @@ def run_stereo_fusion(
             tile.state = TileState.RUNNING
         stereo_stages: dict[str, float] = {}
         with timer.stage("stereo depth"):
-            maps = stereo_depth_maps(capture, plan, options, progress, cancel, stereo_stages)
+            sensor_counts = SensorMergeCount()
+            maps = stereo_depth_maps(capture, plan, options, progress, cancel, stereo_stages, sensor_counts)
         span_warning = depth_span_warning(plan, maps, settings.max_room_size)
         if span_warning is not None:
             plan.warnings.append(span_warning)
@@ -162,6 +170,8 @@ def run_stereo_fusion(
             "options": {k: v for k, v in vars(options).items() if k != "device"},
             "stages_s": {k: round(v, 4) for k, v in stereo_stages.items()},
         }
+        if sensor_counts.sensor:
+            stats["stereo"]["sensor_depth"] = sensor_counts.summary()
         check(cancel)
         with timer.stage("TSDF fusion"):
             fused = None

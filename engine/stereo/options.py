@@ -61,6 +61,9 @@ class StereoOptions:
     # for 5 px triangles and the pixels left empty are seldom under one (docs/experiments.md, "ACMP
     # planar prior (issue 34)").
     planar_prior: bool = False
+    # A phone's depth sensor (Frame.sensor_depth, LiDAR) merged into the maps where it is trusted
+    # (sensor_merge.py); captures without sensor depth are unaffected.
+    sensor_depth: bool = True
     device: str = "cpu"
 
     def validate(self) -> None:

@@ -57,7 +57,7 @@ def test_import_fills_panel_and_creates_cameras(blender, empty_scene, fake_loade
     assert settings.capture_path == str(tmp_path)
     assert (settings.capture_format, settings.frame_count, settings.posed_frame_count) == ("transforms", 6, 6)
     assert (settings.resolution_x, settings.resolution_y) == (320, 240)
-    assert settings.pose_status == "All 6 posed (transforms)" and settings.poses_metric
+    assert settings.pose_status == "All 6 posed (transforms), metric" and settings.poses_metric
     cameras = [o for o in bpy.data.collections["VoRTX Capture"].objects if o.type == "CAMERA"]
     assert len(cameras) == 6
 

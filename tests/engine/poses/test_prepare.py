@@ -167,7 +167,7 @@ def test_metric_and_unposed_captures_pass_through(tilted_colmap: Path) -> None:
     kept = prepare_capture(metric, camera_height=CAMERA_HEIGHT)
     assert kept.scale_source == "metric capture" and not kept.moved() and not kept.ran_sfm
     np.testing.assert_array_equal(_poses(kept.capture), _poses(metric))
-    assert kept.pose_status() == f"All {COUNT} posed (colmap)"
+    assert kept.pose_status() == f"All {COUNT} posed (colmap), metric"
 
     unposed = metric.with_frames([f.__class__(f.image_path, f.width, f.height, f.K) for f in metric.frames], metric=False)
     untouched = prepare_capture(unposed, sfm=SFM_NEVER)

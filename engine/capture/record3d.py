@@ -1,0 +1,282 @@
+"""Loader for Record3D's exports (format "record3d"), an iPhone/iPad app.
+
+The app's ".r3d" export is a zip (unpacked by `load_capture` first, `archive.py`) holding:
+
+    metadata        JSON: `w`, `h` (photo size), `K` (9 numbers, the 3x3 intrinsics in COLUMN-major
+                    order: fx 0 0 0 fy 0 cx cy 1), `poses` (one [qx, qy, qz, qw, px, py, pz] per frame:
+                    ARKit's camera-to-world rotation quaternion, scalar last, and position in metres),
+                    `fps`, `dw`, `dh` (depth map size), and in recent versions `frameTimestamps` (s) and
+                    `perFrameIntrinsicCoeffs` ([fx, fy, cx, cy] per frame)
+    rgbd/N.jpg      photo of frame N (N = 0, 1, ...: the index into `poses`)
+    rgbd/N.depth    its LiDAR (or TrueDepth) depth: LZFSE-compressed float32 metres, dh rows of dw
+    rgbd/N.conf     its confidence, LZFSE-compressed uint8 (0 low, 1 medium, 2 high), LiDAR only
+
+Record3D publishes no specification; the layout is the app author's (github.com/marek-simonik/record3d
+issues #27, #33, #36, #63, #83, #93, #95: order [qx, qy, qz, qw, px, py, pz], camera-to-world, OpenGL
+camera axes, K of the first frame) and agrees with nerfstudio's process_data/record3d_utils.py and
+viser's Record3D loader (K transposed, the same pose convention, .depth/.conf as above). The photos
+are portrait before app version 1.10.1 and may be landscape since; K, w, h and the poses' camera axes
+describe the photos as stored. Poses are ARKit tracking (`arkit.arkit_to_engine`), with two
+differences the author states:
+- the world is not gravity's: the recording starts at the "zero" pose (the metadata's `initPose` is
+  [0, 0, 0, 1, 0, 0, 0]), so the world's axes are the first frame's camera axes and its "up" is only
+  as level as the phone was then. When the first pose is that zero pose, the world is levelled here:
+  turned about a horizontal axis so that the cameras' mean up is +Z (people hold the phone upright and
+  tilts up and down cancel out), with a note saying by how much;
+- front-camera (TrueDepth) recordings have no tracking: every pose is the zero pose. They are refused
+  with what to do instead.
+The app records at up to 60 frames per second, so frames about 1/fps s apart are kept
+(`LoadOptions.fps`, 2 per second by default, the rate of a video's frames). A photo without a usable
+pose is skipped with a warning naming `metadata`; a photo whose depth is missing or unreadable is
+used without it.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any, Optional
+
+import numpy as np
+
+from ..errors import CaptureError
+from ..jobs import CancelToken, ProgressFn
+from .arkit import arkit_to_engine, pose_origin
+from .checks import SkippedPhotos, finish_capture, inspect_images
+from .geometry import PoseRepairs, fit_intrinsics, pinhole
+from .images import UnusableImage
+from .model import Capture, Frame, SensorDepth
+from .naming import name_list
+from .options import LoadOptions
+from .sensor_depth import check_sensor_depths
+from .stray_scanner import frames_at_rate, quaternion_transform
+
+APP = "Record3D"
+METADATA = "metadata"
+_PHOTO = re.compile(r"^(\d+)\.jpe?g$", re.IGNORECASE)
+# Record3D's recording rate when the metadata states neither timestamps nor fps (its LiDAR default).
+_FALLBACK_FPS = 60.0
+_ZERO_POSE = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])  # [qx, qy, qz, qw, px, py, pz]: the recording's start
+_ADVICE = "export the recording from Record3D again (Export > .r3d) and choose the .r3d file"
+
+
+def is_record3d_folder(path: Path) -> bool:
+    """An unpacked .r3d export: a `metadata` file beside an `rgbd/` folder."""
+    return (path / METADATA).is_file() and (path / "rgbd").is_dir()
+
+
+def _read_metadata(path: Path) -> dict[str, Any]:
+    """The metadata JSON object; CaptureError naming the file when it is unreadable or not JSON."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise CaptureError(f"cannot read {path}: {error.strerror or error}.") from error
+    except ValueError as error:  # invalid JSON or invalid UTF-8
+        raise CaptureError(f"{path} is not valid JSON ({error}): the export is damaged; {_ADVICE}.") from error
+    if not isinstance(data, dict):
+        raise CaptureError(f"{path} is not a JSON object: the export is damaged; {_ADVICE}.")
+    if not isinstance(data.get("poses"), list):
+        raise CaptureError(f"{path} has no `poses` list (the camera pose of every frame): the export is damaged or "
+                           f"comes from another app; {_ADVICE}.")
+    return data
+
+
+def _positive_number(data: dict[str, Any], key: str) -> Optional[float]:
+    value = data.get(key)
+    if isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value) and value > 0:
+        return float(value)
+    return None
+
+
+def _shared_K(data: dict[str, Any], path: Path) -> Optional[np.ndarray]:
+    """K (3, 3) from `K` (column-major), None when absent; CaptureError naming the file when malformed."""
+    if "K" not in data:
+        return None
+    try:
+        K = np.array(data["K"], dtype=np.float64).reshape(3, 3).T  # column-major: the transpose of a row-major read
+    except (TypeError, ValueError) as error:
+        raise CaptureError(f"{path}: `K` is not 9 numbers ({error}); {_ADVICE}.") from error
+    if not np.all(np.isfinite(K)) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise CaptureError(f"{path}: `K` has no positive focal length ({data['K']}); {_ADVICE}.")
+    return K
+
+
+def _frame_K(data: dict[str, Any], index: int, shared: Optional[np.ndarray]) -> np.ndarray:
+    """K (3, 3) of frame `index`: its `perFrameIntrinsicCoeffs` entry when the metadata has them (ARKit
+    refines the focal length during a recording), else the shared `K`. ValueError saying why."""
+    per_frame = data.get("perFrameIntrinsicCoeffs")
+    if isinstance(per_frame, list) and index < len(per_frame):
+        try:
+            fx, fy, cx, cy = (float(value) for value in per_frame[index])
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"perFrameIntrinsicCoeffs[{index}] is not 4 numbers") from error
+        if np.isfinite([fx, fy, cx, cy]).all() and fx > 0 and fy > 0:
+            return pinhole(fx, fy, cx, cy)
+        raise ValueError(f"perFrameIntrinsicCoeffs[{index}] has no positive focal length")
+    if shared is None:
+        raise ValueError("no intrinsics (neither K nor perFrameIntrinsicCoeffs)")
+    return shared.copy()
+
+
+def _frame_pose(entry: Any, index: int, repairs: PoseRepairs) -> np.ndarray:
+    """Engine pose (4, 4) of poses[index] = [qx, qy, qz, qw, px, py, pz]; ValueError saying why not."""
+    if not isinstance(entry, list) or len(entry) != 7:
+        raise ValueError(f"poses[{index}] is not 7 numbers")
+    try:
+        values = [float(value) for value in entry]
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"poses[{index}] is not 7 numbers") from error
+    transform, deviation = quaternion_transform(values[:4], values[4:])
+    return arkit_to_engine(repairs.make_rigid(transform, f"poses[{index}]", deviation))
+
+
+def _is_zero_pose(entry: Any) -> bool:
+    """Whether a `poses` entry is Record3D's starting pose [0, 0, 0, 1, 0, 0, 0] (no rotation, at the
+    origin): the first frame of a recording, or every frame of one without tracking."""
+    try:
+        return bool(np.allclose(np.asarray(entry, dtype=np.float64), _ZERO_POSE, atol=1e-6))
+    except (TypeError, ValueError):  # a malformed entry, reported where the poses are read
+        return False
+
+
+def _levelled(poses: list[np.ndarray]) -> tuple[list[np.ndarray], float]:
+    """Engine poses (each (4, 4)) turned about a horizontal axis through the origin so that the mean of
+    the cameras' up vectors (-y, OpenCV axes) is +Z; and that turn in degrees. The smallest such
+    rotation, so the heading is kept. Poses whose up vectors cancel out are returned unchanged."""
+    mean_up = np.mean([-pose[:3, 1] for pose in poses], axis=0)
+    length = float(np.linalg.norm(mean_up))
+    if length < 1e-6:
+        return poses, 0.0
+    up = mean_up / length
+    axis = np.cross(up, [0.0, 0.0, 1.0])
+    sine, cosine = float(np.linalg.norm(axis)), float(up[2])
+    if sine < 1e-12 and cosine > 0:
+        return poses, 0.0
+    # Rodrigues; the mean up pointing straight down (a capture filmed upside down) turns about x.
+    unit = axis / sine if sine >= 1e-12 else np.array([1.0, 0.0, 0.0])
+    cross = np.array([[0.0, -unit[2], unit[1]], [unit[2], 0.0, -unit[0]], [-unit[1], unit[0], 0.0]])
+    turn = np.eye(4)
+    turn[:3, :3] = np.eye(3) + sine * cross + (1.0 - cosine) * cross @ cross
+    return [turn @ pose for pose in poses], float(np.degrees(np.arctan2(sine, cosine)))
+
+
+def _frame_times(data: dict[str, Any], indices: list[int], warnings: list[str]) -> list[float]:
+    """Seconds of each frame index: `frameTimestamps` when the metadata has one per pose, else index / fps."""
+    stamps = data.get("frameTimestamps")
+    if isinstance(stamps, list) and len(stamps) == len(data["poses"]):
+        try:
+            return [float(stamps[i]) for i in indices]
+        except (TypeError, ValueError):
+            pass  # damaged timestamps: the frame rate still places the frames
+    fps = _positive_number(data, "fps")
+    if fps is None:
+        warnings.append(f"{METADATA} states neither frameTimestamps nor fps: assumed {_FALLBACK_FPS:g} frames per "
+                        "second")
+        fps = _FALLBACK_FPS
+    return [i / fps for i in indices]
+
+
+def _depth_size(data: dict[str, Any]) -> Optional[tuple[int, int]]:
+    """(dw, dh) of the depth maps, or None when the metadata does not state both."""
+    dw, dh = _positive_number(data, "dw"), _positive_number(data, "dh")
+    return (int(dw), int(dh)) if dw is not None and dh is not None else None
+
+
+def load_record3d(path: Path, options: LoadOptions, progress: Optional[ProgressFn] = None,
+                  cancel: Optional[CancelToken] = None) -> Capture:
+    """Capture (format "record3d") of an unpacked Record3D export folder `path` (metadata + rgbd/)."""
+    metadata_path = path / METADATA
+    data = _read_metadata(metadata_path)
+    shared_K = _shared_K(data, metadata_path)
+    stated_w, stated_h = _positive_number(data, "w"), _positive_number(data, "h")
+    stated_size = (int(stated_w), int(stated_h)) if stated_w and stated_h else None
+    rgbd = path / "rgbd"
+    photos = sorted((int(match.group(1)), p) for p in rgbd.iterdir() if (match := _PHOTO.match(p.name)))
+    if not photos:
+        raise CaptureError(f"{rgbd} holds no N.jpg photos: the export has no colour frames; {_ADVICE}.")
+
+    poses = data["poses"]
+    warnings: list[str] = []
+    repairs = PoseRepairs()
+    without_pose, bad_frames = [], []
+    posed: list[tuple[int, Path, np.ndarray, np.ndarray]] = []  # (index, photo, pose, K)
+    for index, photo in photos:
+        if index >= len(poses):
+            without_pose.append(f"rgbd/{photo.name}")
+            continue
+        try:
+            posed.append((index, photo, _frame_pose(poses[index], index, repairs), _frame_K(data, index, shared_K)))
+        except ValueError as error:
+            bad_frames.append(f"rgbd/{photo.name} ({error})")
+    if without_pose:
+        warnings.append(f"{METADATA} has {len(poses)} poses but rgbd/ holds {len(photos)} photos: the "
+                        f"{len(without_pose)} photo(s) past the last pose are skipped: {name_list(without_pose)}")
+    if bad_frames:
+        warnings.append(f"{len(bad_frames)} frame(s) have an unusable pose or intrinsics in {METADATA}, skipped: "
+                        f"{name_list(bad_frames)}")
+    if repairs.warning():
+        warnings.append(f"{metadata_path}: {repairs.warning()}")
+    if not posed:
+        raise CaptureError(f"no photo of {path} has a usable pose and intrinsics in {METADATA} "
+                           f"({'; '.join(warnings) or 'its poses list is empty'}): {_ADVICE}.")
+    if len(posed) > 1 and all(_is_zero_pose(poses[index]) for index, _, _, _ in posed):
+        raise CaptureError(f"every pose in {metadata_path} is [0, 0, 0, 1, 0, 0, 0]: Record3D tracks the camera only "
+                           "in recordings with the rear (LiDAR) camera, not the front (TrueDepth) one. Record the room "
+                           f"again with the rear camera, or choose the folder {rgbd} to load the photos without poses "
+                           "(structure from motion then estimates them).")
+    notes = []
+    if _is_zero_pose(poses[0]):  # the world is the first frame's camera, not gravity's (see above)
+        levelled, tilt = _levelled([pose for _, _, pose, _ in posed])
+        posed = [(index, photo, pose, K) for (index, photo, _, K), pose in zip(posed, levelled)]
+        notes.append(f"Record3D's world starts at the first frame's camera, not at gravity: levelled by the cameras' "
+                     f"mean up (turned {tilt:.1f} deg)")
+
+    times = _frame_times(data, [index for index, _, _, _ in posed], warnings)
+    kept = [posed[i] for i in frames_at_rate(times, options.fps)]
+    depth_size = _depth_size(data)
+    entries: list[tuple[Path, np.ndarray, np.ndarray, Optional[SensorDepth]]] = []
+    no_depth = []
+    for index, photo, pose, K in kept:
+        depth, confidence = rgbd / f"{index}.depth", rgbd / f"{index}.conf"
+        sensor = None
+        if not depth.is_file():
+            no_depth.append(f"rgbd/{photo.name}")
+        elif depth_size is not None:  # the .depth files do not store their size
+            sensor = SensorDepth(depth, "r3d", confidence if confidence.is_file() else None, size=depth_size)
+        entries.append((photo, pose, K, sensor))
+    with_depth = len(entries) - len(no_depth)
+    if with_depth and depth_size is None:
+        warnings.append(f"{METADATA} does not state the depth maps' size (dw, dh): the depth maps are not used")
+    elif no_depth and with_depth:  # an export without any depth (a phone without LiDAR) is no problem
+        warnings.append(f"{len(no_depth)} photo(s) have no rgbd/N.depth, used without depth: {name_list(no_depth)}")
+
+    skipped = SkippedPhotos()
+    infos = inspect_images([photo for photo, _, _, _ in entries], skipped, verify=options.verify_images,
+                           progress=progress, cancel=cancel)
+    frames, usable_infos, scale_warnings = [], [], []
+    for (photo, pose, K, sensor), info in zip(entries, infos):
+        if info is None:
+            continue
+        if stated_size is not None:
+            try:
+                K, warning = fit_intrinsics(K, stated_size, info.size, photo, METADATA)
+            except UnusableImage as error:  # another aspect ratio than the metadata's w x h
+                skipped.add(error)
+                continue
+            if warning and not scale_warnings:
+                scale_warnings.append(warning)
+        frames.append(Frame(image_path=photo, width=info.width, height=info.height, K=K, pose=pose,
+                            sensor_depth=sensor))
+        usable_infos.append(info)
+    warnings += scale_warnings
+    if options.verify_images:
+        frames = check_sensor_depths(frames, warnings)
+    metric = True if options.metric is None else options.metric
+    capture = finish_capture(path, "record3d", frames, usable_infos, path, metric, warnings, skipped,
+                             what="posed photo")
+    capture.pose_origin = pose_origin(APP)
+    capture.notes += notes
+    if len(kept) < len(posed):
+        capture.notes.append(f"{len(kept)} of the {len(posed)} posed frames kept (about {options.fps:g} per second)")
+    return capture
