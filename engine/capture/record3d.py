@@ -40,7 +40,8 @@ from typing import Any, Optional
 
 import numpy as np
 
-from ..errors import CaptureError
+from ..errors import CaptureError, PoseError
+from ..geometry.cameras import mean_up_direction, rotation_taking
 from ..jobs import CancelToken, ProgressFn
 from .arkit import arkit_to_engine, pose_origin
 from .checks import SkippedPhotos, finish_capture, inspect_images
@@ -144,21 +145,13 @@ def _levelled(poses: list[np.ndarray]) -> tuple[list[np.ndarray], float]:
     """Engine poses (each (4, 4)) turned about a horizontal axis through the origin so that the mean of
     the cameras' up vectors (-y, OpenCV axes) is +Z; and that turn in degrees. The smallest such
     rotation, so the heading is kept. Poses whose up vectors cancel out are returned unchanged."""
-    mean_up = np.mean([-pose[:3, 1] for pose in poses], axis=0)
-    length = float(np.linalg.norm(mean_up))
-    if length < 1e-6:
+    try:
+        up = mean_up_direction(np.stack(poses))
+    except PoseError:
         return poses, 0.0
-    up = mean_up / length
-    axis = np.cross(up, [0.0, 0.0, 1.0])
-    sine, cosine = float(np.linalg.norm(axis)), float(up[2])
-    if sine < 1e-12 and cosine > 0:
-        return poses, 0.0
-    # Rodrigues; the mean up pointing straight down (a capture filmed upside down) turns about x.
-    unit = axis / sine if sine >= 1e-12 else np.array([1.0, 0.0, 0.0])
-    cross = np.array([[0.0, -unit[2], unit[1]], [unit[2], 0.0, -unit[0]], [-unit[1], unit[0], 0.0]])
     turn = np.eye(4)
-    turn[:3, :3] = np.eye(3) + sine * cross + (1.0 - cosine) * cross @ cross
-    return [turn @ pose for pose in poses], float(np.degrees(np.arctan2(sine, cosine)))
+    turn[:3, :3] = rotation_taking(up, np.array([0.0, 0.0, 1.0]))
+    return [turn @ pose for pose in poses], float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
 
 
 def _frame_times(data: dict[str, Any], indices: list[int], warnings: list[str]) -> list[float]:

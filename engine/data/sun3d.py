@@ -25,6 +25,7 @@ import numpy as np
 
 from . import scannet_layout as layout
 from ..errors import VortxError
+from ..geometry.cameras import mean_up_direction, rotation_taking
 from ..jobs import ProgressCallback, report
 from ..mesh_io import write_ply
 from ..recon.mesh import extract_mesh
@@ -54,16 +55,7 @@ def z_up_rotation(poses: np.ndarray) -> np.ndarray:
     A handheld room scan keeps the camera roughly level, so the mean of the cameras' up vectors is
     the world's up within a few degrees; the rotation is the smallest one that does it (Rodrigues).
     """
-    up = -poses[:, :3, 1].mean(axis=0)
-    up /= np.linalg.norm(up)
-    z = np.array([0.0, 0.0, 1.0])
-    axis = np.cross(up, z)
-    s, c = np.linalg.norm(axis), float(up @ z)
-    if s < 1e-12:
-        return np.eye(3) if c > 0 else np.diag([1.0, -1.0, -1.0])
-    k = axis / s
-    skew = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + s * skew + (1 - c) * skew @ skew
+    return rotation_taking(mean_up_direction(poses), np.array([0.0, 0.0, 1.0]))
 
 
 def convert_sun3d(source: Path, out: Path, progress: Optional[ProgressCallback] = None) -> dict:

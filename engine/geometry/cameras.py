@@ -14,6 +14,8 @@ from typing import TYPE_CHECKING, Sequence, TypeVar
 
 import numpy as np
 
+from ..errors import PoseError
+
 if TYPE_CHECKING:  # torch is imported only by the tensor functions: planning and capture stay numpy-only
     import torch
 
@@ -157,3 +159,31 @@ def frustum_corners(K: np.ndarray, cam_to_world: np.ndarray, width: int, height:
     x = (u - K[0, 2] - K[0, 1] * (v - K[1, 2]) / K[1, 1]) * depth / K[0, 0]
     cam = np.stack([x, y, np.full(4, float(depth))], axis=1)
     return cam @ np.asarray(cam_to_world, np.float64)[:3, :3].T + cam_to_world[:3, 3]
+
+
+def mean_up_direction(cam_to_world: np.ndarray) -> np.ndarray:
+    """(N, 4, 4) camera-to-world (OpenCV axes) -> (3,) unit mean of the cameras' up vectors (-y)."""
+    ups = -cam_to_world[:, :3, 1]
+    mean = ups.mean(axis=0)
+    norm = np.linalg.norm(mean)
+    if norm < 1e-6:
+        raise PoseError("cannot find 'up': the cameras' up directions cancel out (cameras pointing every way)")
+    return mean / norm
+
+
+def rotation_taking(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The smallest rotation (3, 3) taking unit vector a onto unit vector b (Rodrigues).
+
+    Smallest, so the heading (yaw) of the SfM world is kept: the scene does not spin around Z.
+    """
+    v = np.cross(a, b)
+    c = float(np.dot(a, b))
+    if c < -1.0 + 1e-12:
+        # Opposite vectors: any half-turn about an axis perpendicular to a will do.
+        axis = np.cross(a, [1.0, 0.0, 0.0])
+        if np.linalg.norm(axis) < 1e-6:
+            axis = np.cross(a, [0.0, 1.0, 0.0])
+        axis /= np.linalg.norm(axis)
+        return 2.0 * np.outer(axis, axis) - np.eye(3)
+    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+    return np.eye(3) + vx + vx @ vx / (1.0 + c)

@@ -35,6 +35,7 @@ import numpy as np
 
 from ..capture.model import Capture, Frame
 from ..errors import PoseError
+from ..geometry.cameras import mean_up_direction, rotation_taking  # noqa: F401 (also this module's API)
 from .align import Similarity
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .floor import GRAVITY_MIN_INLIERS, MIN_FLOOR_POINTS, FloorPlane, find_floor_plane
@@ -83,34 +84,6 @@ class Rescaled:
     capture: Capture  # poses scaled about the origin, marked metric
     points: Optional[np.ndarray]  # (N, 3) the given points scaled the same way, or None
     factor: float
-
-
-def mean_up_direction(cam_to_world: np.ndarray) -> np.ndarray:
-    """(N, 4, 4) camera-to-world (OpenCV axes) -> (3,) unit mean of the cameras' up vectors (-y)."""
-    ups = -cam_to_world[:, :3, 1]
-    mean = ups.mean(axis=0)
-    norm = np.linalg.norm(mean)
-    if norm < 1e-6:
-        raise PoseError("cannot find 'up': the cameras' up directions cancel out (cameras pointing every way)")
-    return mean / norm
-
-
-def rotation_taking(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The smallest rotation (3, 3) taking unit vector a onto unit vector b (Rodrigues).
-
-    Smallest, so the heading (yaw) of the SfM world is kept: the scene does not spin around Z.
-    """
-    v = np.cross(a, b)
-    c = float(np.dot(a, b))
-    if c < -1.0 + 1e-12:
-        # Opposite vectors: any half-turn about an axis perpendicular to a will do.
-        axis = np.cross(a, [1.0, 0.0, 0.0])
-        if np.linalg.norm(axis) < 1e-6:
-            axis = np.cross(a, [0.0, 1.0, 0.0])
-        axis /= np.linalg.norm(axis)
-        return 2.0 * np.outer(axis, axis) - np.eye(3)
-    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + vx + vx @ vx / (1.0 + c)
 
 
 def lowest_points_height(point_z: Optional[np.ndarray], camera_z: np.ndarray) -> Optional[float]:
