@@ -13,7 +13,8 @@ then averaged:
 - `median_error_m`: median |rendered - LiDAR| where both exist.
 
 Both variants run by default (sensor depth on, then stereo alone), so each number stands beside its
-baseline measured the same way.
+baseline measured the same way; the reconstruction's own flags (`--finish`, `--max-room-size`, ...)
+apply to both.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
@@ -34,9 +36,10 @@ from ..geometry.cameras import scale_intrinsics
 from ..geometry.depth_render import render_depth
 from ..jobs import TqdmProgress
 from ..mesh_io import Mesh
-from ..poses.prepare import SFM_IF_UNPOSED, prepare_capture
+from ..poses.prepare import KEEP_POSES_HELP, SFM_IF_UNPOSED, prepare_capture
 from ..recon.driver import reconstruct
-from ..recon.settings import ReconSettings
+from ..recon.presets import add_quality_argument, settings_from_quality_arguments
+from ..recon.settings import ReconSettings, add_setting_arguments
 
 MAX_TRUTH_DEPTH_M = 4.5  # a phone LiDAR's reliable range; beyond it the sensor is no truth
 AGREEMENT_M = 0.05
@@ -74,12 +77,13 @@ def compare_to_sensor(mesh: Mesh, frame: Frame, pose: np.ndarray) -> Optional[di
     }
 
 
-def evaluate_variant(kept: Capture, held: list[Frame], sensor_depth: bool, progress=None) -> dict:
-    """Reconstruct `kept` as `engine reconstruct` does by default (pose check, refinement when off),
-    with or without its sensor depth, and compare the mesh with each held-out frame's LiDAR."""
+def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, keep_poses: bool = False,
+                     progress=None) -> dict:
+    """Reconstruct `kept` as `engine reconstruct` does (pose check, refinement when off) with `settings`,
+    and compare the mesh with each held-out frame's LiDAR."""
     started = time.perf_counter()
-    prepared = prepare_capture(kept, sfm=SFM_IF_UNPOSED, check_poses=True, refine_when_off=True, progress=progress)
-    settings = ReconSettings(sensor_depth=sensor_depth)
+    prepared = prepare_capture(kept, sfm=SFM_IF_UNPOSED, check_poses=True, refine_when_off=not keep_poses,
+                               progress=progress)
     result = reconstruct(prepared.capture, settings, progress=progress)
     seconds = time.perf_counter() - started
     # Held-out poses move into the reconstruction's world as the kept ones did (identity for a metric capture).
@@ -93,7 +97,8 @@ def evaluate_variant(kept: Capture, held: list[Frame], sensor_depth: bool, progr
     if not rows:
         raise VortxError("no held-out frame has confident sensor depth to compare with")
     mean = {key: float(np.nanmean([r[key] for r in rows])) for key in ("within_5cm", "rendered", "median_error_m")}
-    return {"sensor_depth": sensor_depth, "frames_in": len(kept.frames), "held_out": len(rows),
+    return {"sensor_depth": settings.sensor_depth, "settings": settings.to_dict(), "keep_poses": keep_poses,
+            "poses_refined": prepared.refinement is not None, "frames_in": len(kept.frames), "held_out": len(rows),
             "faces": int(len(result.mesh.faces)), "seconds": round(seconds, 1), "mean": mean, "frames": rows,
             "stereo": result.stats.get("stereo", {}), "warnings": list(result.warnings)}
 
@@ -115,6 +120,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with the sensor depth, stereo alone, or both (default)")
     parser.add_argument("--json", type=Path, help="write the per-frame and mean numbers here")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    parser.add_argument("--keep-poses", action="store_true", help=KEEP_POSES_HELP)
+    add_quality_argument(parser)
+    add_setting_arguments(parser)  # the reconstruction's own flags (--finish, --max-room-size, ...)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -126,7 +134,8 @@ def run(args: argparse.Namespace) -> int:
     variants = {"both": (True, False), "sensor": (True,), "stereo": (False,)}[args.variant]
     progress = TqdmProgress(disable=args.quiet)
     try:
-        results = [evaluate_variant(kept, held, v, progress) for v in variants]
+        settings = settings_from_quality_arguments(args)
+        results = [evaluate_variant(kept, held, replace(settings, sensor_depth=v), args.keep_poses, progress) for v in variants]
     finally:
         progress.close()
     print(format_rows(results))

@@ -194,3 +194,36 @@ def test_real_fox_capture(blender, empty_scene) -> None:
     assert (settings.resolution_x, settings.resolution_y) == (1080, 1920)
     assert (empty_scene.render.resolution_x, empty_scene.render.resolution_y) == (1080, 1920)
     assert all(c.data.sensor_fit == "VERTICAL" for c in cameras)
+
+
+def test_a_zipped_phone_export_lands_with_arkit_poses_and_its_depth_as_points(blender, empty_scene, tmp_path: Path) -> None:
+    """Import Capture on a 3D Scanner App export's .zip: the cameras at the ARKit poses turned Z up,
+    the Poses line naming ARKit, metric, and the LiDAR depth as the scene's point cloud."""
+    import zipfile
+
+    import bpy
+
+    from fixtures_phone import walk, write_export
+    scene_points = importlib.import_module(f"{blender.__name__}.vortx_blender.point_cloud").scene_points
+
+    folder = write_export(tmp_path / "scan", walk(5))
+    archive = tmp_path / "scan.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        for path in sorted(folder.iterdir()):
+            zf.write(path, f"scan/{path.name}")
+    assert bpy.ops.vortx.import_capture(filepath=str(archive)) == {"FINISHED"}
+    settings = empty_scene.vortx
+    assert (settings.capture_format, settings.frame_count, settings.posed_frame_count) == ("3dscannerapp", 5, 5)
+    assert settings.poses_metric and settings.pose_source == "ARKit (3D Scanner App)"
+    assert settings.pose_status == "All 5 posed (ARKit (3D Scanner App)), metric"
+    cameras = _capture_cameras(bpy)
+    assert len(cameras) == 5
+    for obj in cameras:  # the phone was held upright: Blender's camera up (its local +y) is world +Z
+        np.testing.assert_allclose(np.array(obj.matrix_world)[:3, 1], [0.0, 0.0, 1.0], atol=1e-5)
+    points, _ = scene_points(empty_scene)
+    # walk()'s depth: frame i sees a wall 1 + 0.1 i m ahead, confident on the left half of each map.
+    assert points is not None and len(points) > 0
+    for obj, depth_m in zip(cameras, (1.0, 1.1, 1.2, 1.3, 1.4)):
+        camera = np.array(obj.matrix_world)
+        ahead = (points - camera[:3, 3]) @ -camera[:3, 2]  # Blender cameras look down their local -z
+        assert np.any(np.abs(ahead - depth_m) < 1e-3)
