@@ -17,8 +17,8 @@ from ..capture import Capture
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..stereo.depth_maps import estimate_depth_maps, stereo_references
 from ..stereo.fused_tsdf import fuse_depth_maps
-from ..stereo.options import StereoOptions
-from ..stereo.sensor_merge import SensorMergeCount, merge_sensor_maps
+from ..stereo.options import MATCHER_PATCHMATCH, StereoOptions
+from ..stereo.sensor_maps import sensor_depth_map
 from ..stereo.depth_maps import DepthMap
 from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS, drop_unsupported_pieces, fuse_stereo_evidence
 from ..stereo.vertex_evidence import attach_evidence
@@ -51,32 +51,39 @@ def stereo_depth_maps(
     capture: Capture, plan: ReconPlan, options: StereoOptions,
     progress: Optional[ProgressCallback] = None, cancel: Optional[CancelToken] = None,
     stages: Optional[dict[str, float]] = None,
-    sensor_counts: Optional[SensorMergeCount] = None,
 ) -> list[DepthMap]:
     """Depth maps of (up to `options.max_references`) keyframes; sources come from every posed frame
     (the sweep) or from the other keyframes (PatchMatch, whose geometric passes need their maps).
-    `stages` receives the matcher's stage seconds. Keyframes with sensor depth (a phone's LiDAR) have
-    it merged in when `options.sensor_depth` (stereo/sensor_merge.py); `sensor_counts` receives how
-    many pixels came from the sensor.
+    `stages` receives the matcher's stage seconds. With `options.sensor_depth`, every keyframe with
+    sensor depth (a phone's LiDAR) gets its map from the sensor instead (stereo/sensor_maps.py), and
+    stereo runs only for the others.
 
-    DepthMap.frame indexes `plan.keyframes`.
+    DepthMap.frame indexes `plan.keyframes`, in keyframe order.
     """
     usable, _ = posed_frames(capture)
     frames = [capture.frames[i] for i in usable]
     poses = np.stack([f.pose for f in frames]).astype(np.float64)
     position = {frame_id: p for p, frame_id in enumerate(usable)}
-    chosen = stereo_references(len(plan.keyframes), options.max_references)
-    references = [position[plan.keyframe_ids[k]] for k in chosen]
-    bounds = (plan.bounds.minimum, plan.bounds.maximum)
-    # Sparse SfM points, when the capture carries them, give each view a tight depth range.
-    points = capture.points if capture.points is not None and len(capture.points) else None
-    maps = estimate_depth_maps(frames, poses, references, options, points=points, bounds=bounds, progress=progress,
-                               cancel=cancel, stages=stages)
-    for m, k in zip(maps, chosen):
-        m.frame = int(k)
-    if options.sensor_depth and any(f.sensor_depth is not None for f in plan.keyframes):
-        maps = merge_sensor_maps(maps, plan.keyframes, sensor_counts if sensor_counts is not None else SensorMergeCount())
-    return maps
+    with_sensor = ({k for k, f in enumerate(plan.keyframes) if f.sensor_depth is not None}
+                   if options.sensor_depth else set())
+    without_sensor = np.array([k for k in range(len(plan.keyframes)) if k not in with_sensor], dtype=np.int64)
+    chosen = without_sensor[stereo_references(len(without_sensor), options.max_references)]
+    maps: list[DepthMap] = []
+    if len(chosen):
+        references = [position[plan.keyframe_ids[k]] for k in chosen]
+        bounds = (plan.bounds.minimum, plan.bounds.maximum)
+        # Sparse SfM points, when the capture carries them, give each view a tight depth range.
+        points = capture.points if capture.points is not None and len(capture.points) else None
+        maps = estimate_depth_maps(frames, poses, references, options, points=points, bounds=bounds, progress=progress,
+                                   cancel=cancel, stages=stages)
+        for m, k in zip(maps, chosen):
+            m.frame = int(k)
+    with_normals = options.matcher == MATCHER_PATCHMATCH  # the sensor's maps carry normals as PatchMatch's do
+    for done, k in enumerate(sorted(with_sensor)):
+        check(cancel)
+        report(progress, "sensor depth", done, len(with_sensor))
+        maps.append(sensor_depth_map(k, plan.keyframes[k], options.long_side, with_normals))
+    return sorted(maps, key=lambda m: m.frame)
 
 
 def depth_points_box(maps: list[DepthMap], margin: float, stride: int = 4) -> Optional[tuple[np.ndarray, np.ndarray]]:
@@ -159,8 +166,7 @@ def run_stereo_fusion(
             tile.state = TileState.RUNNING
         stereo_stages: dict[str, float] = {}
         with timer.stage("stereo depth"):
-            sensor_counts = SensorMergeCount()
-            maps = stereo_depth_maps(capture, plan, options, progress, cancel, stereo_stages, sensor_counts)
+            maps = stereo_depth_maps(capture, plan, options, progress, cancel, stereo_stages)
         span_warning = depth_span_warning(plan, maps, settings.max_room_size)
         if span_warning is not None:
             plan.warnings.append(span_warning)
@@ -170,8 +176,8 @@ def run_stereo_fusion(
             "options": {k: v for k, v in vars(options).items() if k != "device"},
             "stages_s": {k: round(v, 4) for k, v in stereo_stages.items()},
         }
-        if sensor_counts.sensor:
-            stats["stereo"]["sensor_depth"] = sensor_counts.summary()
+        if options.sensor_depth and any(f.sensor_depth is not None for f in plan.keyframes):
+            stats["stereo"]["sensor_depth_maps"] = int(sum(plan.keyframes[m.frame].sensor_depth is not None for m in maps))
         check(cancel)
         with timer.stage("TSDF fusion"):
             fused = None

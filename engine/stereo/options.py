@@ -61,8 +61,8 @@ class StereoOptions:
     # for 5 px triangles and the pixels left empty are seldom under one (docs/experiments.md, "ACMP
     # planar prior (issue 34)").
     planar_prior: bool = False
-    # A phone's depth sensor (Frame.sensor_depth, LiDAR) merged into the maps where it is trusted
-    # (sensor_merge.py); captures without sensor depth are unaffected.
+    # A phone's depth sensor (Frame.sensor_depth, LiDAR) gives the maps of the keyframes that have it,
+    # in place of stereo (sensor_maps.py); captures without sensor depth are unaffected.
     sensor_depth: bool = True
     device: str = "cpu"
 

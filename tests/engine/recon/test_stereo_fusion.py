@@ -100,3 +100,43 @@ def test_untrained_evidence_weights_give_the_stereo_methods_mesh_on_the_demo(dem
     trim = TsdfVolume.load(DEMO / "truth" / "tsdf_gt.npz")
     scores = {m: evaluate_mesh(mesh, truth, trim).fscore for m, mesh in meshes.items()}
     assert abs(scores["vortx"] - scores["stereo"]) < 0.005, scores
+
+
+def test_sensor_depth_gives_the_maps_of_the_photos_that_have_it(demo_posed: Path, tmp_path: Path) -> None:
+    """The demo photos with a LiDAR-like depth per photo (the true room rendered at 80 x 60, confident
+    except on a border, as a phone's is): no PatchMatch map for them, and a mesh that matches the true
+    room better than stereo's from the same photos; with --no-sensor-depth, stereo as before."""
+    import cv2
+    from dataclasses import replace
+
+    from engine.capture import load_capture
+    from engine.capture.model import SensorDepth
+    from engine.geometry.depth_render import render_depth
+
+    capture = load_capture(demo_posed)
+    truth = read_ply(DEMO / "truth" / "mesh_gt.ply")
+    frames = []
+    for i, frame in enumerate(capture.frames):
+        size = (80, 60)
+        K = frame.K * np.array([[size[0] / frame.width], [size[1] / frame.height], [1.0]])
+        depth = render_depth(truth.vertices, truth.faces, K, frame.pose, size)
+        depth = np.where(np.isfinite(depth), depth, 0.0)
+        confidence = np.full(depth.shape, 2, np.uint8)
+        confidence[:, :4] = 0  # a low-confidence border: no depth taken there
+        cv2.imwrite(str(tmp_path / f"depth_{i}.png"), np.round(depth * 1000).astype(np.uint16))
+        cv2.imwrite(str(tmp_path / f"conf_{i}.png"), confidence)
+        frames.append(replace(frame, sensor_depth=SensorDepth(tmp_path / f"depth_{i}.png", "png_mm",
+                                                              tmp_path / f"conf_{i}.png")))
+    with_depth = capture.with_frames(frames)
+    settings = ReconSettings(voxel_size=0.08, stereo_image_size=128, stereo_views=12, colour_views=3)
+    scores = {}
+    for sensor_depth in (True, False):
+        result = reconstruct(with_depth, replace(settings, sensor_depth=sensor_depth))
+        scores[sensor_depth] = evaluate_mesh(result.mesh, truth, TsdfVolume.load(DEMO / "truth" / "tsdf_gt.npz"))
+        stereo = result.stats["stereo"]
+        if sensor_depth:
+            assert stereo["stages_s"] == {} and stereo["sensor_depth_maps"] == stereo["references"] == len(frames)
+        else:
+            assert stereo["references"] == 12 and "sensor_depth_maps" not in stereo
+    # Measured: F 0.83 with the sensor depth, 0.61 with stereo alone (8 cm voxels, 12 small depth maps).
+    assert scores[True].fscore > 0.78 and scores[True].fscore > scores[False].fscore + 0.12, scores
