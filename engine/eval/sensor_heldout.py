@@ -107,7 +107,7 @@ def format_rows(results: list[dict]) -> str:
     lines = [f"{'variant':<22}{'within 5 cm':>12}{'rendered':>10}{'median err':>12}{'faces':>9}{'time':>8}"]
     for r in results:
         m = r["mean"]
-        name = "sensor depth + stereo" if r["sensor_depth"] else "stereo alone"
+        name = "sensor depth" if r["sensor_depth"] else "stereo alone"
         lines.append(f"{name:<22}{m['within_5cm']:>12.3f}{m['rendered']:>10.3f}{100 * m['median_error_m']:>10.1f}cm"
                      f"{r['faces']:>9}{r['seconds']:>7.0f}s")
     return "\n".join(lines)

@@ -184,7 +184,7 @@ def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
         ("VORTX_PT_tiles", ["show_tiles"]),
         ("VORTX_PT_result", ["finish", "min_piece_faces", "min_piece_fraction", "target_faces", "texture_size", "face_budget",
                              *(["headset"] if "headset" in RECON_NAMES else [])]),  # the headset: being added
-        ("VORTX_PT_advanced", ["frustum_depth", "max_room_size", "colour_views"]),
+        ("VORTX_PT_advanced", ["frustum_depth", "max_room_size", "colour_views", "sensor_depth"]),
     ],
 )
 def test_settings_panels_show_their_properties(blender, empty_scene, panel: str, expected: list[str]) -> None:
