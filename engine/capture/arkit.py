@@ -15,9 +15,16 @@ which keeps the scale (metres) and turns ARKit's up (+y) into the engine's (+Z).
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
+from .checks import SkippedPhotos, finish_capture
 from .geometry import opengl_to_opencv, quaternion_to_rotation
+from .images import ImageInfo
+from .model import Capture, Frame
+from .options import LoadOptions
+from .sensor_depth import check_sensor_depths
 
 # World rotation taking ARKit's y-up axes to the engine's Z up: x -> x, y -> z, z -> -y (a rotation
 # of +90 deg about x; determinant +1, so handedness is kept).
@@ -49,3 +56,17 @@ def transform_from_quaternion_xyzw(quaternion_xyzw: np.ndarray, position: np.nda
     transform[:3, :3] = quaternion_to_rotation(np.array([w, x, y, z]))  # takes COLMAP's (w, x, y, z)
     transform[:3, 3] = np.asarray(position, dtype=np.float64)
     return transform
+
+
+def finish_phone_capture(root: Path, format: str, app: str, frames: list[Frame], infos: list[ImageInfo], where: Path,
+                         options: LoadOptions, warnings: list[str], skipped: SkippedPhotos,
+                         what: str = "posed photo") -> Capture:
+    """The common tail of the phone apps' loaders: unreadable depth maps dropped with a warning (when
+    the options verify files), metric unless the options say otherwise, `checks.finish_capture`, and
+    the poses' origin "ARKit (<app>)". `frames` and `infos` correspond one to one."""
+    if options.verify_images:
+        frames = check_sensor_depths(frames, warnings)
+    metric = True if options.metric is None else options.metric
+    capture = finish_capture(root, format, frames, infos, where, metric, warnings, skipped, what=what)
+    capture.pose_origin = pose_origin(app)
+    return capture

@@ -37,14 +37,13 @@ import numpy as np
 
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
-from .arkit import arkit_to_engine, pose_origin
-from .checks import SkippedPhotos, finish_capture, inspect_images
+from .arkit import arkit_to_engine, finish_phone_capture
+from .checks import SkippedPhotos, inspect_images
 from .geometry import PoseRepairs, fit_intrinsics, pinhole
 from .images import UnusableImage, list_images
 from .model import Capture, Frame, SensorDepth
 from .naming import name_list
 from .options import LoadOptions
-from .sensor_depth import check_sensor_depths
 
 APP = "Polycam"
 _KEYFRAME_FOLDERS = ("images", "corrected_images", "cameras", "corrected_cameras")
@@ -166,12 +165,7 @@ def load_polycam(path: Path, options: LoadOptions, progress: Optional[ProgressFn
                             sensor_depth=sensor))
         usable_infos.append(info)
     warnings += scale_warnings
-    if options.verify_images:
-        frames = check_sensor_depths(frames, warnings)
-    metric = True if options.metric is None else options.metric
-    capture = finish_capture(path, "polycam", frames, usable_infos, images, metric, warnings, skipped,
-                             what="posed photo")
-    capture.pose_origin = pose_origin(APP)
+    capture = finish_phone_capture(path, "polycam", APP, frames, usable_infos, images, options, warnings, skipped)
     if images.name == "corrected_images":
         capture.notes.append(f"Polycam's undistorted photos and optimised poses used ({images.name}/, "
                              f"{cameras.name}/)")

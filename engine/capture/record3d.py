@@ -43,14 +43,13 @@ import numpy as np
 from ..errors import CaptureError, PoseError
 from ..geometry.cameras import mean_up_direction, rotation_taking
 from ..jobs import CancelToken, ProgressFn
-from .arkit import arkit_to_engine, pose_origin
-from .checks import SkippedPhotos, finish_capture, inspect_images
+from .arkit import arkit_to_engine, finish_phone_capture
+from .checks import SkippedPhotos, inspect_images
 from .geometry import PoseRepairs, fit_intrinsics, pinhole
 from .images import UnusableImage
 from .model import Capture, Frame, SensorDepth
 from .naming import name_list
 from .options import LoadOptions
-from .sensor_depth import check_sensor_depths
 from .stray_scanner import frames_at_rate, quaternion_transform
 
 APP = "Record3D"
@@ -263,12 +262,7 @@ def load_record3d(path: Path, options: LoadOptions, progress: Optional[ProgressF
                             sensor_depth=sensor))
         usable_infos.append(info)
     warnings += scale_warnings
-    if options.verify_images:
-        frames = check_sensor_depths(frames, warnings)
-    metric = True if options.metric is None else options.metric
-    capture = finish_capture(path, "record3d", frames, usable_infos, path, metric, warnings, skipped,
-                             what="posed photo")
-    capture.pose_origin = pose_origin(APP)
+    capture = finish_phone_capture(path, "record3d", APP, frames, usable_infos, path, options, warnings, skipped)
     capture.notes += notes
     if len(kept) < len(posed):
         capture.notes.append(f"{len(kept)} of the {len(posed)} posed frames kept (about {options.fps:g} per second)")

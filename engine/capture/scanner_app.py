@@ -24,13 +24,12 @@ import numpy as np
 
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
-from .arkit import arkit_to_engine, pose_origin
-from .checks import SkippedPhotos, finish_capture, inspect_images
+from .arkit import arkit_to_engine, finish_phone_capture
+from .checks import SkippedPhotos, inspect_images
 from .geometry import PoseRepairs
 from .model import Capture, Frame, SensorDepth
 from .naming import name_list, natural_key
 from .options import LoadOptions
-from .sensor_depth import check_sensor_depths
 
 APP = "3D Scanner App"
 _PHOTO = re.compile(r"^frame_(\d+)\.jpe?g$", re.IGNORECASE)
@@ -116,10 +115,6 @@ def load_scanner_app(path: Path, options: LoadOptions, progress: Optional[Progre
                            progress=progress, cancel=cancel)
     frames = [Frame(image_path=photo, width=info.width, height=info.height, K=K, pose=pose, sensor_depth=sensor)
               for (photo, pose, K, sensor), info in zip(entries, infos) if info is not None]
-    if options.verify_images:
-        frames = check_sensor_depths(frames, warnings)
-    metric = True if options.metric is None else options.metric
-    capture = finish_capture(path, "3dscannerapp", frames, [info for info in infos if info is not None], path,
-                             metric, warnings, skipped, what="posed photo")
-    capture.pose_origin = pose_origin(APP)
+    capture = finish_phone_capture(path, "3dscannerapp", APP, frames, [info for info in infos if info is not None], path,
+                                   options, warnings, skipped)
     return capture

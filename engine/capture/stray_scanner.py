@@ -35,14 +35,13 @@ import numpy as np
 
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn, check, report
-from .arkit import arkit_to_engine, pose_origin, transform_from_quaternion_xyzw
+from .arkit import arkit_to_engine, finish_phone_capture, transform_from_quaternion_xyzw
 from .cache import cache_folder, read_manifest, reset_folder, source_stamp, write_manifest
-from .checks import SkippedPhotos, finish_capture, inspect_images
+from .checks import SkippedPhotos, inspect_images
 from .geometry import ROTATION_TOLERANCE, PoseRepairs, quaternion_deviation
 from .model import Capture, Frame, SensorDepth
 from .naming import name_list
 from .options import LoadOptions
-from .sensor_depth import check_sensor_depths
 from .video import blurry_frames, sharpness
 
 APP = "Stray Scanner"
@@ -310,12 +309,8 @@ def load_stray_scanner(path: Path, options: LoadOptions, progress: Optional[Prog
         _check_principal_point(K, sizes[0], path)
     frames = [Frame(image_path=photo, width=info.width, height=info.height, K=K.copy(), pose=pose, sensor_depth=sensor)
               for (photo, pose, sensor), info in zip(entries, infos) if info is not None]
-    if options.verify_images:
-        frames = check_sensor_depths(frames, warnings)
-    metric = True if options.metric is None else options.metric
-    capture = finish_capture(path, "strayscanner", frames, [info for info in infos if info is not None], path,
-                             metric, warnings, skipped, what="posed frame")
-    capture.pose_origin = pose_origin(APP)
+    capture = finish_phone_capture(path, "strayscanner", APP, frames, [info for info in infos if info is not None], path,
+                                   options, warnings, skipped, what="posed frame")
     capture.notes.append(f"{len(done['frames'])} of the {video_frames} frames of {VIDEO} (about {options.fps:g} per "
                          f"second) extracted into {folder}")
     return capture
