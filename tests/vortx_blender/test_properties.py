@@ -64,6 +64,7 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
         "colour_views": 12,
         "max_room_size": (8.0, 9.0, 3.0),
         "frustum_depth": 3.5,
+        "sensor_depth": False,
         "result_mode": "ADD",
         "min_piece_faces": 50,
         "min_piece_fraction": 0.02,
