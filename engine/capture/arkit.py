@@ -15,14 +15,16 @@ which keeps the scale (metres) and turns ARKit's up (+y) into the engine's (+Z).
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from typing import Any, Callable, Optional
 
 import numpy as np
 
 from .checks import SkippedPhotos, finish_capture
-from .geometry import opengl_to_opencv, quaternion_to_rotation
-from .images import ImageInfo
-from .model import Capture, Frame
+from .geometry import fit_intrinsics, opengl_to_opencv, quaternion_to_rotation
+from .images import ImageInfo, UnusableImage
+from .model import Capture, Frame, SensorDepth
 from .options import LoadOptions
 from .sensor_depth import check_sensor_depths
 
@@ -70,3 +72,46 @@ def finish_phone_capture(root: Path, format: str, app: str, frames: list[Frame],
     capture = finish_capture(root, format, frames, infos, where, metric, warnings, skipped, what=what)
     capture.pose_origin = pose_origin(app)
     return capture
+
+
+def read_json_object(path: Path) -> dict[str, Any]:
+    """The JSON object in `path` (an app's per-frame camera file); ValueError saying what is wrong, for
+    the loader's warning naming the file."""
+    try:
+        data: Any = json.loads(path.read_text(encoding="utf-8"))
+    except OSError as error:
+        raise ValueError(f"cannot read it: {error.strerror or error}") from error
+    except ValueError as error:
+        raise ValueError(f"not valid JSON ({error})") from error
+    if not isinstance(data, dict):
+        raise ValueError("not a JSON object")
+    return data
+
+
+# (photo, engine pose (4, 4), K (3, 3), the (width, height) K was stated for or None, its sensor depth)
+PhotoEntry = tuple[Path, np.ndarray, np.ndarray, Optional[tuple[int, int]], Optional[SensorDepth]]
+
+
+def frames_of_photos(entries: list[PhotoEntry], infos: list[Optional[ImageInfo]], skipped: SkippedPhotos,
+                     source: Callable[[Path], str], warnings: list[str]) -> tuple[list[Frame], list[ImageInfo]]:
+    """Frames (and their infos) of the photos that could be read (`infos[i]` not None), K fitted to each
+    photo's size where a size was stated (`geometry.fit_intrinsics`; `source(photo)` names the file that
+    stated it). A photo of another aspect ratio than stated is added to `skipped`; a uniform rescale adds
+    one warning to `warnings`."""
+    frames, usable, scaled = [], [], []
+    for (photo, pose, K, stated_size, sensor), info in zip(entries, infos):
+        if info is None:
+            continue
+        if stated_size is not None:
+            try:
+                K, warning = fit_intrinsics(K, stated_size, info.size, photo, source(photo))
+            except UnusableImage as error:
+                skipped.add(error)
+                continue
+            if warning and not scaled:
+                scaled.append(warning)
+        frames.append(Frame(image_path=photo, width=info.width, height=info.height, K=K, pose=pose,
+                            sensor_depth=sensor))
+        usable.append(info)
+    warnings += scaled
+    return frames, usable

@@ -29,19 +29,18 @@ photo whose depth map is missing or unreadable is used without depth, with a war
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Any, Optional
+from typing import Optional
 
 import numpy as np
 
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
-from .arkit import arkit_to_engine, finish_phone_capture
+from .arkit import arkit_to_engine, finish_phone_capture, frames_of_photos, read_json_object
 from .checks import SkippedPhotos, inspect_images
-from .geometry import PoseRepairs, fit_intrinsics, pinhole
-from .images import UnusableImage, list_images
-from .model import Capture, Frame, SensorDepth
+from .geometry import PoseRepairs, pinhole
+from .images import list_images
+from .model import Capture, SensorDepth
 from .naming import name_list
 from .options import LoadOptions
 
@@ -61,14 +60,7 @@ def is_polycam_folder(path: Path) -> bool:
 def _camera_record(path: Path) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     """(ARKit camera-to-world (4, 4), K (3, 3), (width, height) the camera states) from one camera
     JSON; ValueError saying what is wrong."""
-    try:
-        data: Any = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise ValueError(f"cannot read it: {error.strerror or error}") from error
-    except ValueError as error:
-        raise ValueError(f"not valid JSON ({error})") from error
-    if not isinstance(data, dict):
-        raise ValueError("not a JSON object")
+    data = read_json_object(path)
     missing = [key for key in ("fx", "fy", "cx", "cy", "width", "height", *_TRANSFORM_KEYS) if key not in data]
     if missing:
         raise ValueError(f"no {', '.join(missing[:4])}{' ...' if len(missing) > 4 else ''}")
@@ -150,21 +142,8 @@ def load_polycam(path: Path, options: LoadOptions, progress: Optional[ProgressFn
     skipped = SkippedPhotos()
     infos = inspect_images([photo for photo, _, _, _, _ in entries], skipped, verify=options.verify_images,
                            progress=progress, cancel=cancel)
-    frames, usable_infos, scale_warnings = [], [], []
-    for (photo, pose, K, stated_size, sensor), info in zip(entries, infos):
-        if info is None:
-            continue
-        try:
-            K, warning = fit_intrinsics(K, stated_size, info.size, photo, f"{cameras.name}/{photo.stem}.json")
-        except UnusableImage as error:  # another aspect ratio than its camera states
-            skipped.add(error)
-            continue
-        if warning and not scale_warnings:
-            scale_warnings.append(warning)
-        frames.append(Frame(image_path=photo, width=info.width, height=info.height, K=K, pose=pose,
-                            sensor_depth=sensor))
-        usable_infos.append(info)
-    warnings += scale_warnings
+    frames, usable_infos = frames_of_photos(entries, infos, skipped, lambda photo: f"{cameras.name}/{photo.stem}.json",
+                                            warnings)
     capture = finish_phone_capture(path, "polycam", APP, frames, usable_infos, images, options, warnings, skipped)
     if images.name == "corrected_images":
         capture.notes.append(f"Polycam's undistorted photos and optimised poses used ({images.name}/, "

@@ -43,11 +43,10 @@ import numpy as np
 from ..errors import CaptureError, PoseError
 from ..geometry.cameras import mean_up_direction, rotation_taking
 from ..jobs import CancelToken, ProgressFn
-from .arkit import arkit_to_engine, finish_phone_capture
+from .arkit import arkit_to_engine, finish_phone_capture, frames_of_photos
 from .checks import SkippedPhotos, inspect_images
-from .geometry import PoseRepairs, fit_intrinsics, pinhole
-from .images import UnusableImage
-from .model import Capture, Frame, SensorDepth
+from .geometry import PoseRepairs, pinhole
+from .model import Capture, SensorDepth
 from .naming import name_list
 from .options import LoadOptions
 from .stray_scanner import frames_at_rate, quaternion_transform
@@ -159,8 +158,8 @@ def _frame_times(data: dict[str, Any], indices: list[int], warnings: list[str]) 
     if isinstance(stamps, list) and len(stamps) == len(data["poses"]):
         try:
             return [float(stamps[i]) for i in indices]
-        except (TypeError, ValueError):
-            pass  # damaged timestamps: the frame rate still places the frames
+        except (TypeError, ValueError):  # damaged timestamps: the frame rate still places the frames
+            warnings.append(f"{METADATA}'s frameTimestamps are not all numbers: frames placed by its fps instead")
     fps = _positive_number(data, "fps")
     if fps is None:
         warnings.append(f"{METADATA} states neither frameTimestamps nor fps: assumed {_FALLBACK_FPS:g} frames per "
@@ -246,22 +245,8 @@ def load_record3d(path: Path, options: LoadOptions, progress: Optional[ProgressF
     skipped = SkippedPhotos()
     infos = inspect_images([photo for photo, _, _, _ in entries], skipped, verify=options.verify_images,
                            progress=progress, cancel=cancel)
-    frames, usable_infos, scale_warnings = [], [], []
-    for (photo, pose, K, sensor), info in zip(entries, infos):
-        if info is None:
-            continue
-        if stated_size is not None:
-            try:
-                K, warning = fit_intrinsics(K, stated_size, info.size, photo, METADATA)
-            except UnusableImage as error:  # another aspect ratio than the metadata's w x h
-                skipped.add(error)
-                continue
-            if warning and not scale_warnings:
-                scale_warnings.append(warning)
-        frames.append(Frame(image_path=photo, width=info.width, height=info.height, K=K, pose=pose,
-                            sensor_depth=sensor))
-        usable_infos.append(info)
-    warnings += scale_warnings
+    frames, usable_infos = frames_of_photos([(photo, pose, K, stated_size, sensor) for photo, pose, K, sensor in entries],
+                                            infos, skipped, lambda photo: METADATA, warnings)
     capture = finish_phone_capture(path, "record3d", APP, frames, usable_infos, path, options, warnings, skipped)
     capture.notes += notes
     if len(kept) < len(posed):

@@ -15,16 +15,15 @@ naming it; a photo whose depth map is missing or unreadable is used without dept
 
 from __future__ import annotations
 
-import json
 import re
 from pathlib import Path
-from typing import Any, Optional
+from typing import Optional
 
 import numpy as np
 
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
-from .arkit import arkit_to_engine, finish_phone_capture
+from .arkit import arkit_to_engine, finish_phone_capture, read_json_object
 from .checks import SkippedPhotos, inspect_images
 from .geometry import PoseRepairs
 from .model import Capture, Frame, SensorDepth
@@ -42,14 +41,7 @@ def is_scanner_app_folder(path: Path) -> bool:
 
 def _frame_record(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(ARKit camera-to-world (4, 4), K (3, 3)) from one frame JSON; ValueError saying what is wrong."""
-    try:
-        data: Any = json.loads(path.read_text(encoding="utf-8"))
-    except OSError as error:
-        raise ValueError(f"cannot read it: {error.strerror or error}") from error
-    except ValueError as error:
-        raise ValueError(f"not valid JSON ({error})") from error
-    if not isinstance(data, dict):
-        raise ValueError("not a JSON object")
+    data = read_json_object(path)
     pose, intrinsics = data.get("cameraPoseARFrame"), data.get("intrinsics")
     if not isinstance(pose, list) or len(pose) != 16:
         raise ValueError("no cameraPoseARFrame of 16 numbers")

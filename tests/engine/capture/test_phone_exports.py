@@ -292,6 +292,19 @@ def test_record3d_keeps_about_two_frames_a_second(tmp_path):
     assert any("3 of the 8 posed frames kept" in note for note in capture.notes)
 
 
+def test_record3d_damaged_timestamps_fall_back_to_the_frame_rate_and_say_so(tmp_path):
+    """Frames 1/6 s apart by their timestamps; with the timestamps damaged, the metadata's 60 fps puts
+    them 1/60 s apart, so fewer frames are kept at 2 per second, and a warning names the file."""
+    folder = write_record3d(tmp_path / "export", walk(80), seconds_apart=1 / 6)
+    metadata = json.loads((folder / "metadata").read_text())
+    metadata["frameTimestamps"][3] = "garbled"
+    (folder / "metadata").write_text(json.dumps(metadata))
+    capture = load_capture(folder)
+    # 80 frames at 60 fps span 1.3 s: frames 0, 30 and 60 at 2 per second (by the timestamps: 0, 3, 6, ...).
+    assert [f.name for f in capture.frames] == ["0.jpg", "30.jpg", "60.jpg"]
+    assert any("frameTimestamps are not all numbers" in w and "metadata" in w for w in capture.warnings)
+
+
 def test_record3d_world_of_the_first_camera_is_levelled(tmp_path):
     """Record3D's world starts at the first frame's camera (the zero pose), which here looks 20 deg down:
     the loader levels it by the cameras' mean up, which these tilts (pairs of -20 and +20 deg) make exact."""
