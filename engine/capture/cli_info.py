@@ -20,7 +20,8 @@ from .model import Capture
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("capture", type=Path, help="photo folder, COLMAP/ScanNet/transforms.json folder or video file")
+    parser.add_argument("capture", type=Path, help="photo folder, COLMAP/ScanNet/transforms.json folder, video file, or a "
+                        "phone app's export (3D Scanner App, Stray Scanner, Record3D, Polycam: folder, .zip or .r3d)")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     parser.add_argument("--format", choices=FORMATS, help="skip detection and read the capture as this format")
     parser.add_argument("--fps", type=float, default=2.0, help="video: frames extracted per second (default 2)")
