@@ -4,6 +4,7 @@ loader and of Blender's Import Capture."""
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -57,3 +58,9 @@ def write_export(folder: Path, transforms: list[np.ndarray], every_photo: int = 
 
 def walk(count: int) -> list[np.ndarray]:
     return [arkit_transform(10.0 * i, (0.3 * i, 1.4, -0.2 * i)) for i in range(count)]
+
+
+# The public 3D Scanner App sample (PyojinKim/3dScannerApp_samples, rgbd_dataset_renaissance_03_corridor01/All_Data),
+# fetched beside the repository, never committed; VORTX_CORRIDOR points elsewhere.
+CORRIDOR = Path(os.environ.get("VORTX_CORRIDOR", Path(__file__).resolve().parents[2] / "data"
+                               / "rgbd_dataset_renaissance_03_corridor01" / "All_Data"))

@@ -227,3 +227,27 @@ def test_a_zipped_phone_export_lands_with_arkit_poses_and_its_depth_as_points(bl
         camera = np.array(obj.matrix_world)
         ahead = (points - camera[:3, 3]) @ -camera[:3, 2]  # Blender cameras look down their local -z
         assert np.any(np.abs(ahead - depth_m) < 1e-3)
+
+
+def test_the_real_corridor_export_imports_with_its_cameras_and_depth_points(blender, empty_scene) -> None:
+    """The 3D Scanner App corridor sample as it comes (fetched outside the repository), through Import
+    Capture: 146 cameras, ARKit metric poses, the LiDAR's points."""
+    import bpy
+
+    from fixtures_phone import CORRIDOR
+    if not CORRIDOR.is_dir():
+        pytest.skip(f"the 3D Scanner App corridor sample is not at {CORRIDOR} (fetch github "
+                    "PyojinKim/3dScannerApp_samples, folder rgbd_dataset_renaissance_03_corridor01/All_Data, "
+                    "or set VORTX_CORRIDOR)")
+    scene_points = importlib.import_module(f"{blender.__name__}.vortx_blender.point_cloud").scene_points
+    assert bpy.ops.vortx.import_capture(filepath=str(CORRIDOR)) == {"FINISHED"}
+    settings = empty_scene.vortx
+    assert (settings.capture_format, settings.frame_count, settings.posed_frame_count) == ("3dscannerapp", 146, 146)
+    assert settings.poses_metric and settings.pose_source.startswith("ARKit (3D Scanner App)")
+    assert len(_capture_cameras(bpy)) == 146
+    points, colours = scene_points(empty_scene)
+    assert points is not None and len(points) > 50_000
+    # The corridor's floor: the lowest dense band of LiDAR points lies 1.2-1.7 m below the cameras.
+    camera_z = np.median([np.array(o.matrix_world)[2, 3] for o in _capture_cameras(bpy)])
+    floor_z = np.percentile(points[:, 2], 5)
+    assert 1.2 < camera_z - floor_z < 1.7

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import os
 import zipfile
 from pathlib import Path
 
@@ -15,7 +14,7 @@ from engine.capture.cli_info import describe, format_text
 from engine.capture.sensor_depth import read_sensor_depth
 from engine.errors import CaptureError
 from engine.geometry.cameras import project_points
-from fixtures_phone import DH, DW, K, project_arkit, walk, write_export
+from fixtures_phone import CORRIDOR, DH, DW, K, project_arkit, walk, write_export
 
 def test_poses_are_arkit_turned_z_up_and_project_as_the_app_says(tmp_path):
     transforms = walk(6)
@@ -106,10 +105,6 @@ def test_a_zip_that_would_write_outside_its_folder_is_refused(tmp_path):
     with pytest.raises(CaptureError, match="outside the folder"):
         load_capture(archive, cache_dir=tmp_path / "cache")
     assert not (tmp_path / "cache" / "outside.txt").exists() and not (tmp_path / "outside.txt").exists()
-
-
-CORRIDOR = Path(os.environ.get("VORTX_CORRIDOR", Path(__file__).resolve().parents[4] / "data"
-                               / "rgbd_dataset_renaissance_03_corridor01" / "All_Data"))
 
 
 @pytest.mark.skipif(not CORRIDOR.is_dir(), reason=f"the 3D Scanner App corridor sample is not at {CORRIDOR} (fetch "
