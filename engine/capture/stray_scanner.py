@@ -42,7 +42,7 @@ from .geometry import ROTATION_TOLERANCE, PoseRepairs, quaternion_deviation
 from .model import Capture, Frame, SensorDepth
 from .naming import name_list
 from .options import LoadOptions
-from .video import blurry_frames, sharpness
+from .video import blurry_frames, write_frame
 
 APP = "Stray Scanner"
 VIDEO = "rgb.mp4"
@@ -189,12 +189,8 @@ def _extract(video: Path, folder: Path, wanted: set[int], progress: Optional[Pro
                 ok, bgr = capture.retrieve()
                 if ok and bgr is not None:
                     name = f"frame_{number:06d}.jpg"
-                    ok, encoded = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
-                    if not ok:
-                        raise CaptureError(f"could not encode frame {number} of {video} as JPEG.")
-                    encoded.tofile(str(folder / name))
+                    scores.append(write_frame(bgr, folder / name, video, number))
                     written.append((number, name))
-                    scores.append(sharpness(bgr))
             number += 1
             report(progress, "extracting video frames", number, max(total, number))
     finally:

@@ -81,12 +81,8 @@ def _extract(video: Path, folder: Path, fps: float, progress: Optional[ProgressF
                 ok, bgr = capture.retrieve()
                 if ok and bgr is not None:
                     name = f"{video.stem}_{index:06d}.jpg"
-                    ok, encoded = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
-                    if not ok:
-                        raise CaptureError(f"could not encode frame {index} of {video} as JPEG.")
-                    encoded.tofile(str(folder / name))
+                    scores.append(write_frame(bgr, folder / name, video, index))
                     names.append(name)
-                    scores.append(sharpness(bgr))
                 next_time += step
                 while next_time <= time:  # keep the schedule when frames are missing
                     next_time += step
@@ -98,6 +94,18 @@ def _extract(video: Path, folder: Path, fps: float, progress: Optional[ProgressF
         raise CaptureError(f"no frame could be read from video {video}: the file is damaged or its codec is not "
                            "supported by OpenCV. Convert it to H.264 MP4.")
     return names, scores, warnings
+
+
+def write_frame(bgr: np.ndarray, target: Path, video: Path, index: int) -> float:
+    """Writes one decoded video frame (h, w, 3) BGR as a JPEG (quality 95) to `target`; returns its
+    sharpness, for `blurry_frames`. CaptureError naming the video when it cannot be encoded."""
+    import cv2  # defers cv2 (OpenCV) off the light paths
+
+    ok, encoded = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    if not ok:
+        raise CaptureError(f"could not encode frame {index} of {video} as JPEG.")
+    encoded.tofile(str(target))
+    return sharpness(bgr)
 
 
 def load_video(path: Path, options: LoadOptions, progress: Optional[ProgressFn] = None,
