@@ -19,6 +19,13 @@ instead: the structural planes (`planes.py`), the depth maps' votes (`free_space
   anything off the planes stays as it was. Added faces are marked: the vertex attribute ADDED is 1 on
   them (their vertices are their own, not shared with seen faces).
 
+A plane is applied only where the evidence agrees (issue 43): each grid follows where the surface
+stands (`local_shift`: drift and slope put a real floor centimetres off any one plane), surface off it
+by more than its noise over a patch is relief and stays (`flat_band`, RELIEF_MIN_AREA), and surface
+behind a plane that cameras behind the plane saw where it is stays and refutes the plane there
+(`_seen_from_behind`: the next leg of a U-shaped corridor); only surface behind a plane that no view
+from behind it supports goes.
+
 Input and output are `engine.mesh_io.Mesh` in the engine's world (metres, Z up, or tilted: `planes.room_up`); colours and evidence
 are attached after finishing by the reconstruction, so only positions, faces and ADDED come out.
 """
@@ -52,6 +59,16 @@ FLOOR_UP_MAX_TURN_DEG = 5.0  # the floor's normal refines the horizon's up by at
 FLOOR_UP_MIN_AGREEMENT = 0.3  # and only when this share of its area agrees with it (`planes.floor_up`)
 EXTENT_PERCENTILE = 0.5  # % of a plane's surface cut at each end of its extent (stray faces)
 BLIND_REACH = 3.0  # camera heights: the farthest a camera's blind spot on the floor (or ceiling) reaches
+# A real room's planes are not one plane across the room: tracking drift and a floor's own slope put the
+# surface a few cm off any single plane (the 3D Scanner App corridor: its floor within -2 .. +3.4 cm of
+# one plane, its walls -7 .. +7 cm, per metre-square cell), and flattening onto the single plane moved
+# them by as much. So each grid follows the surface's own offset from its plane, smoothed over this many
+# metres (a sensor's ripples and stereo's crumples are shorter; drift and slope are longer).
+SHIFT_SMOOTHING = 0.5  # m: the Gaussian's sigma
+SHIFT_ROUNDS = 3  # the shifted surface is found again this many times (and reaches as many tolerances off)
+FLAT_BAND_SIGMAS = 2.5
+MIN_FLAT_BAND = 0.02  # m
+RELIEF_MIN_AREA = 0.04  # m^2 of cells off the plane's band (and none on it) together: relief, not crumple
 
 
 @dataclass
@@ -60,13 +77,16 @@ class FinishOptions:
     least 6 cm). min_views: depth maps that must see a piece for it to stay; small_piece_views: those
     that must see a small piece (under SMALL_PIECE_AREA) of a room whose structure was found (None:
     scaled with the number of depth maps, one per VIEWS_PER_MIN_VIEW / VIEWS_PER_SMALL_PIECE_VIEW).
-    cell: the plane grid's cell in m (None: the voxel size). min_plane_area: m^2 of surface a plane needs."""
+    cell: the plane grid's cell in m (None: the voxel size). min_plane_area: m^2 of surface a plane needs.
+    refuting_views: depth maps that must see surface (each of a face's vertices) behind a plane for it to
+    stay and refute the plane there."""
 
     tolerance: Optional[float] = None
     min_views: Optional[int] = None
     small_piece_views: Optional[int] = None
     cell: Optional[float] = None
     min_plane_area: float = 0.3
+    refuting_views: int = 2
 
 
 @dataclass
@@ -81,7 +101,10 @@ class PlaneGrid:
     """One plane's cells: origin (2,) in-plane coordinates of cell (0, 0)'s corner, cell size, and the
     masks (A, B) bool of cells the surface covered (`observed`), free space by the votes (`free`,
     reported), where seeing through outvotes surface (`open`: doors, windows) and the finished surface's
-    cells (`keep` = observed, or added where nothing contradicts it)."""
+    cells (`keep` = observed, or added where nothing contradicts it). `shift` (A, B) float: where the
+    surface stands along the plane's normal, per cell, in metres off the plane (`local_shift`); `band` m:
+    the plane's noise (`flat_band`); `relief` (A, B) bool: patches of cells with surface near the plane
+    but off it by more than the band, and none within it (kept as they are, never covered)."""
 
     plane: StructuralPlane
     origin: np.ndarray
@@ -90,6 +113,9 @@ class PlaneGrid:
     free: np.ndarray
     keep: np.ndarray
     open: np.ndarray
+    shift: np.ndarray
+    relief: np.ndarray
+    band: float
 
     @property
     def added(self) -> np.ndarray:
@@ -101,12 +127,36 @@ class PlaneGrid:
         inside = (index >= 0).all(axis=1) & (index[:, 0] < self.keep.shape[0]) & (index[:, 1] < self.keep.shape[1])
         return np.clip(index[:, 0], 0, self.keep.shape[0] - 1), np.clip(index[:, 1], 0, self.keep.shape[1] - 1), inside
 
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(N,) signed distance of world points (N, 3) from the surface where it stands: the plane moved
+        by its `shift` at their cell (the nearest cell outside the grid)."""
+        i, j, _ = self.cells_of(self.plane.to_plane(points))
+        return self.plane.distance(points) - self.shift[i, j]
+
     def blocks(self, points: np.ndarray) -> np.ndarray:
         """(N,) bool: world points (N, 3) project into the plane's extent away from its openings (cells
         a view saw through, grown by a cell): there the plane hides whatever lies behind it."""
         i, j, inside = self.cells_of(self.plane.to_plane(points))
         opening = ndimage.binary_dilation(self.open, iterations=1)
         return inside & ~opening[i, j]
+
+    def refute(self, points: np.ndarray) -> None:
+        """Surface seen where it is, at world points (N, 3) behind the plane, says the plane does not stand
+        in front of it: their cells (grown by a cell) are neither added nor blocking (`blocks`), as an
+        opening's are. Cells the surface covered stay."""
+        if len(points) == 0:
+            return
+        i, j, inside = self.cells_of(self.plane.to_plane(points))
+        refuted = np.zeros_like(self.keep)
+        refuted[i[inside], j[inside]] = True
+        refuted = ndimage.binary_dilation(refuted, iterations=1)
+        self.open |= refuted & ~self.observed
+        self.keep &= ~(refuted & ~self.observed)
+
+    def in_relief(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: world points (N, 3) project into a relief cell."""
+        i, j, inside = self.cells_of(self.plane.to_plane(points))
+        return inside & self.relief[i, j]
 
     def covers(self, points: np.ndarray, dilate: int = 1) -> np.ndarray:
         """(N,) bool: world points (N, 3) project into a kept cell (grown by `dilate` cells)."""
@@ -144,12 +194,49 @@ def _wall_stops(plane: StructuralPlane, axis: int, walls: Sequence[StructuralPla
     return stops
 
 
+def local_shift(shape: tuple[int, int], i: np.ndarray, j: np.ndarray, distance: np.ndarray, weights: np.ndarray,
+                sigma_cells: float) -> np.ndarray:
+    """(A, B) float of a grid of `shape`: the weighted mean of the `distance`s (N,) of surface in cells
+    (i, j) (N,) each, smoothed by a Gaussian of `sigma_cells` (a normalised convolution, so empty cells
+    take their surroundings' value); cells farther than the Gaussian reaches take the nearest value, and
+    a grid with no surface none (0)."""
+    if len(i) == 0:
+        return np.zeros(shape)
+    total = np.bincount(i * shape[1] + j, weights * distance, minlength=shape[0] * shape[1]).reshape(shape)
+    weight = np.bincount(i * shape[1] + j, weights, minlength=shape[0] * shape[1]).reshape(shape)
+    total, weight = (ndimage.gaussian_filter(x, sigma_cells, mode="constant", truncate=3.0) for x in (total, weight))
+    defined = weight > 1e-6 * weight.max()
+    shift = np.where(defined, total / np.maximum(weight, 1e-12), 0.0)
+    if not defined.all():
+        nearest = ndimage.distance_transform_edt(~defined, return_distances=False, return_indices=True)
+        shift = shift[nearest[0], nearest[1]]
+    return shift
+
+
+def _cells_of(shape: tuple[int, int], i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    cells = np.zeros(shape, bool)
+    cells[i, j] = True
+    return cells
+
+
+def flat_band(residual: np.ndarray, tolerance: float) -> float:
+    """The m within which surface is the plane: FLAT_BAND_SIGMAS times the robust spread (1.4826 x the
+    median absolute deviation) of the `residual`s (N,) of its faces from where it stands, at least
+    MIN_FLAT_BAND and at most `tolerance` (LiDAR's walls lie within about a centimetre, stereo's crumple
+    over the whole tolerance)."""
+    if len(residual) < 10:
+        return tolerance
+    spread = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
+    return float(np.clip(FLAT_BAND_SIGMAS * spread, MIN_FLAT_BAND, tolerance))
+
+
 def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centroids: np.ndarray, areas: np.ndarray,
-               distance: np.ndarray, tolerance: float, cell: float, views: Sequence[DepthView],
+               normals: np.ndarray, distance: np.ndarray, tolerance: float, cell: float, views: Sequence[DepthView],
                fill: bool) -> Optional[PlaneGrid]:
     """The cells of one structural plane (see the module doc); None when no surface lies on it.
 
-    centroids (F, 3), areas (F,): the mesh's faces; distance (F,) their signed distance to the plane."""
+    centroids (F, 3), areas (F,), normals (F, 3): the mesh's faces; distance (F,) their signed distance
+    to the plane."""
     near = np.abs(distance) <= tolerance
     if not near.any():
         return None
@@ -169,13 +256,45 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
     origin = np.array([a0, b0])
     shape = (max(1, int(np.ceil((a1 - a0) / cell))), max(1, int(np.ceil((b1 - b0) / cell))))
     grid = PlaneGrid(plane, origin, cell, np.zeros(shape, bool), np.zeros(shape, bool), np.zeros(shape, bool),
-                     np.zeros(shape, bool))
-    i, j, inside = grid.cells_of(coords)
-    grid.observed[i[inside], j[inside]] = True
+                     np.zeros(shape, bool), np.zeros(shape), np.zeros(shape, bool), tolerance)
+    # Where the surface stands (`shift`), found from the faces within the tolerance of it: first of the
+    # plane, then of the shifted surface, which reaches a wall drifting further off as it goes on.
+    reach = np.flatnonzero(np.abs(distance) <= SHIFT_ROUNDS * tolerance)
+    i, j, inside = grid.cells_of(plane.to_plane(centroids[reach]))
+    # Only faces turned the plane's way say where it stands (a cabinet side beside a wall does not).
+    facing = normals[reach] @ plane.normal > FLATTEN_COS
+    window = tolerance
+    on = inside & (np.abs(distance[reach]) <= window)
+    for round_ in range(SHIFT_ROUNDS):
+        grid.shift = local_shift(shape, i[on & facing], j[on & facing], distance[reach][on & facing],
+                                 areas[reach][on & facing], SHIFT_SMOOTHING / cell)
+        residual = distance[reach] - grid.shift[i, j]
+        if round_ == SHIFT_ROUNDS - 2:
+            # The last round keeps only surface within the plane's own noise (its faces' spread about the
+            # shifted surface): the mode, not a mean pulled by a door frame or a recess beside it.
+            grid.band = flat_band(residual[on & facing], tolerance)
+            window = grid.band
+        on = inside & (np.abs(residual) <= window)
+    near = inside & (np.abs(residual) <= tolerance)
+    grid.observed[i[near], j[near]] = True
+    # Surface near the plane but off it by more than its noise, over a patch, is relief (a door frame,
+    # a recess, a skirting board): kept as it is, and the plane adds no cell over it. Scattered cells
+    # off it are crumpled stereo, which the plane replaces.
+    off_band = np.zeros(shape, bool)
+    off_band[i[near & ~on], j[near & ~on]] = True
+    off_band &= ~_cells_of(shape, i[on], j[on])
+    labels, count = ndimage.label(off_band, structure=np.ones((3, 3), bool))
+    if count:
+        sizes = np.bincount(labels.ravel(), minlength=count + 1)
+        big = sizes >= RELIEF_MIN_AREA / cell ** 2
+        big[0] = False
+        grid.relief = big[labels]
+    grid.observed &= ~grid.relief
     # Faces of the 4 cm marching cubes leave single empty cells between their centroids: close them.
     grid.observed = ndimage.binary_closing(grid.observed, structure=np.ones((3, 3), bool), border_value=0) | grid.observed
     ii, jj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
-    centres = plane.from_plane(np.stack([a0 + (ii.ravel() + 0.5) * cell, b0 + (jj.ravel() + 0.5) * cell], axis=1))
+    centres = (plane.from_plane(np.stack([a0 + (ii.ravel() + 0.5) * cell, b0 + (jj.ravel() + 0.5) * cell], axis=1))
+               + grid.shift.reshape(-1, 1) * plane.normal)
     inside_walls = np.ones(len(centres), bool)
     if plane.kind != WALL:  # the floor and ceiling stop at the walls, where a wall stands
         for wall in walls:
@@ -202,7 +321,7 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
         # Closing holes, not inventing surface: an added stretch must touch surface that was seen.
         labels, count = ndimage.label(grid.keep)
         seen_labels = np.unique(labels[grid.observed & grid.keep])
-        grid.keep &= np.isin(labels, seen_labels[seen_labels > 0])
+        grid.keep &= np.isin(labels, seen_labels[seen_labels > 0]) & ~grid.relief
     return grid
 
 
@@ -244,9 +363,12 @@ def grid_mesh(grid: PlaneGrid, cells: np.ndarray) -> tuple[np.ndarray, np.ndarra
     corners = np.stack([i * width + j, (i + 1) * width + j, (i + 1) * width + j + 1, i * width + j + 1], axis=1)
     used, inverse = np.unique(corners, return_inverse=True)
     corners = inverse.reshape(-1, 4)
-    coords = grid.origin + np.stack([used // width, used % width], axis=1) * grid.cell
+    corner_ij = np.stack([used // width, used % width], axis=1)
+    coords = grid.origin + corner_ij * grid.cell
+    # A corner's shift is the mean of the cells around it (cell centres sit half a cell in).
+    shift = ndimage.map_coordinates(grid.shift, (corner_ij - 0.5).T, order=1, mode="nearest")
     faces = np.concatenate([corners[:, [0, 1, 2]], corners[:, [0, 2, 3]]])
-    return grid.plane.from_plane(coords), faces
+    return grid.plane.from_plane(coords) + shift[:, None] * grid.plane.normal, faces
 
 
 def typical_support(seen: np.ndarray, faces: np.ndarray) -> int:
@@ -257,6 +379,23 @@ def typical_support(seen: np.ndarray, faces: np.ndarray) -> int:
     used = np.zeros(len(seen), bool)
     used[faces.ravel()] = True
     return max(1, int(np.median(seen[used])))
+
+
+def _seen_from_behind(vertices: np.ndarray, faces: np.ndarray, behind: np.ndarray, plane: StructuralPlane,
+                      views: Sequence[DepthView], min_views: int) -> np.ndarray:
+    """(F,) bool: which `behind` (F,) faces (vertices (V, 3), faces (F, 3)) behind `plane` are seen where
+    they are, each vertex by `min_views` views, from cameras behind the plane too: surface the plane does
+    not bound (the next leg of a U-shaped corridor beyond a wall of this one), which refutes it there.
+    Seen only from the room's side, it would have been seen through the plane where the plane stands:
+    stereo's debris (or an opening, whose cells are open already)."""
+    from_behind = [view for view in views if plane.distance(np.asarray(view.pose)[None, :3, 3])[0] < 0]
+    seen = np.zeros(len(faces), bool)
+    if not from_behind or not behind.any():
+        return seen
+    used, inverse = np.unique(faces[behind], return_inverse=True)
+    votes = view_votes(vertices[used], from_behind).seen
+    seen[behind] = (votes[inverse.reshape(-1, 3)] >= min_views).all(axis=1)
+    return seen
 
 
 def _pieces_to_drop(mesh: Mesh, votes: Votes, min_views: int, small_min_views: int) -> tuple[np.ndarray, int, int]:
@@ -297,7 +436,7 @@ def _pieces_absorbed(mesh: Mesh, grids: Sequence[PlaneGrid], band: float) -> tup
     centroids, areas, _ = face_geometry(mesh.vertices, mesh.faces)
     near = np.zeros(len(centroids), bool)
     for grid in grids:
-        near |= (np.abs(grid.plane.distance(centroids)) <= band) & grid.covers(centroids)
+        near |= (np.abs(grid.distance(centroids)) <= band) & grid.covers(centroids)
     labels, sizes = face_pieces(mesh.faces, len(mesh.vertices))
     share = np.bincount(labels, areas * near, minlength=len(sizes)) / np.maximum(np.bincount(labels, areas, minlength=len(sizes)), 1e-12)
     drop_piece = share >= ABSORBED_SHARE
@@ -346,20 +485,25 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
 
     grids = []
     drop = np.zeros(len(faces), bool)
+    supported_behind = np.zeros(len(faces), bool)
     for plane in planes:
-        grid = plane_grid(plane, planes, centroids, areas, plane.distance(centroids), tolerance, cell, views,
-                          fill=mode == FINISH_ROOM)
+        grid = plane_grid(plane, planes, centroids, areas, face_normals, plane.distance(centroids), tolerance, cell,
+                          views, fill=mode == FINISH_ROOM)
         if grid is None:
             continue
         grids.append(grid)
-        vertex_distance = plane.distance(vertices)[faces]  # (F, 3)
+        vertex_distance = grid.distance(vertices)[faces]  # (F, 3)
         covered = grid.covers(centroids)
         # Hidden by the plane where it stands: no photo from the room sees there except through an opening.
         behind = (vertex_distance < -tolerance).all(axis=1) & grid.blocks(centroids)
-        drop |= behind
+        seen_there = behind & _seen_from_behind(vertices, faces, behind, plane, views, options.refuting_views)
+        supported_behind |= seen_there
+        drop |= behind & ~seen_there
+        grid.refute(centroids[seen_there])
         if mode == FINISH_ROOM:  # the plane's grid replaces the surface on it
-            drop |= (np.abs(vertex_distance) <= tolerance).all(axis=1) & covered
+            drop |= (np.abs(vertex_distance) <= tolerance).all(axis=1) & covered & ~grid.in_relief(centroids)
     stats["dropped_behind_or_on_planes"] = int(drop.sum())
+    stats["kept_behind_planes_seen"] = int((supported_behind & ~drop).sum())
     kept = keep_faces(Mesh(vertices.astype(np.float32), faces.astype(np.int32)), ~drop)
 
     votes = view_votes(kept.vertices, views)
@@ -399,11 +543,12 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
         moved = np.zeros(len(out_vertices), bool)
         normals = vertex_normals(out_vertices, np.asarray(kept.faces, np.int64))
         for grid in grids:
-            d = grid.plane.distance(out_vertices)
+            d = grid.distance(out_vertices)
             # Facing the plane's way (within 60 deg: crumpled wall surface does): a cabinet's side
             # standing on the floor is not pulled down onto it.
             facing = normals @ grid.plane.normal > FLATTEN_COS
-            on = (np.abs(d) <= tolerance) & facing & grid.covers(out_vertices) & ~moved
+            on = ((np.abs(d) <= tolerance) & facing & grid.covers(out_vertices) & ~grid.in_relief(out_vertices)
+                  & ~moved)
             out_vertices[on] -= d[on, None] * grid.plane.normal
             moved |= on
         stats["flattened_vertices"] = int(moved.sum())
@@ -422,7 +567,8 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
             added_area += float(grid.added.sum()) * grid.cell ** 2
     stats["added_area_m2"] = round(added_area, 3)
     stats["plane_cells"] = [{"kind": g.plane.kind, "observed": int(g.observed.sum()), "added": int(g.added.sum()),
-                             "free": int(g.free.sum())} for g in grids]
+                             "free": int(g.free.sum()), "relief": int(g.relief.sum()), "flat_band_m": round(g.band, 4),
+                             "shift_m": [round(float(g.shift.min()), 3), round(float(g.shift.max()), 3)]} for g in grids]
     out_vertices, out_faces = np.concatenate(parts_v), np.concatenate(parts_f)
     added = np.concatenate(parts_added)
     if len(out_faces):
