@@ -163,12 +163,20 @@ def merge_duplicate_vertices(vertices: np.ndarray, faces: np.ndarray, tolerance:
     triangles look disconnected. Returns (unique vertices (U, 3) float64, faces (F', 3) int64) with
     the faces that collapsed (two corners merged into one) dropped.
     """
+    vertices, faces, _ = merge_duplicate_vertices_indexed(vertices, faces, tolerance)
+    return vertices, faces
+
+
+def merge_duplicate_vertices_indexed(vertices: np.ndarray, faces: np.ndarray,
+                                     tolerance: float = 1e-6) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`merge_duplicate_vertices`, and for each kept vertex the index (U,) int64 of the input vertex it
+    is (to carry per-vertex data along)."""
     vertices = np.asarray(vertices, np.float64).reshape(-1, 3)
     faces = np.asarray(faces, np.int64).reshape(-1, 3)
     if len(vertices) == 0:
-        return vertices, faces
+        return vertices, faces, np.zeros(0, np.int64)
     _, first, inverse = np.unique(np.round(vertices / tolerance).astype(np.int64), axis=0, return_index=True,
                                   return_inverse=True)
     faces = inverse.reshape(-1)[faces]
     faces = faces[(faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])]
-    return vertices[first], faces
+    return vertices[first], faces, first.astype(np.int64)

@@ -16,7 +16,7 @@ Pixel convention as the fusion's: pixel (i, j) covers u in [j, j + 1), v in [i, 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, Sequence
+from typing import Optional, Protocol, Sequence
 
 import numpy as np
 
@@ -25,18 +25,22 @@ from ..mesh_io import Mesh
 from ..photo_sampling import occlusion_depth, points_in_view
 
 # Depths agree within this many metres plus this share of the depth: stereo depth on plain walls is
-# off by a few percent (docs/experiments.md, SUN3D: median 6-7 % on refined poses).
+# off by a few percent (docs/experiments.md, SUN3D: median 6-7 % on refined poses). A map that knows
+# its own accuracy (a phone's LiDAR, engine/stereo/sensor_maps.py) carries a tighter `agreement`.
 AGREE_METRES = 0.08
 AGREE_RELATIVE = 0.03
 
 
 class DepthView(Protocol):
     """A depth map and its camera: depth (h, w) float32 planar metres (0 or inf = none), K (3, 3) in
-    pixels of `depth`, pose (4, 4) camera-to-world."""
+    pixels of `depth`, pose (4, 4) camera-to-world; agreement (metres, share of the depth): how far
+    from its depth a point may lie and still be the surface it saw, None for stereo's
+    (AGREE_METRES, AGREE_RELATIVE)."""
 
     depth: np.ndarray
     K: np.ndarray
     pose: np.ndarray
+    agreement: Optional[tuple[float, float]]
 
 
 @dataclass
@@ -46,6 +50,7 @@ class PlainDepthView:
     depth: np.ndarray
     K: np.ndarray
     pose: np.ndarray
+    agreement: Optional[tuple[float, float]] = None
 
 
 @dataclass
@@ -75,10 +80,9 @@ class Votes:
         return (self.through > 0) & (3 * self.through > self.seen + self.hidden)
 
 
-def view_votes(points: np.ndarray, views: Sequence[DepthView], agree_metres: float = AGREE_METRES,
-               agree_relative: float = AGREE_RELATIVE) -> Votes:
-    """The votes of `views` on world `points` (N, 3): see the module doc; depths agree within
-    `agree_metres` + `agree_relative` x depth."""
+def view_votes(points: np.ndarray, views: Sequence[DepthView]) -> Votes:
+    """The votes of `views` on world `points` (N, 3): see the module doc; a view's depth agrees with a
+    point's within its `agreement` (metres + share x depth)."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
     seen = np.zeros(len(points), np.int32)
     through = np.zeros(len(points), np.int32)
@@ -92,6 +96,7 @@ def view_votes(points: np.ndarray, views: Sequence[DepthView], agree_metres: flo
         d = depth[np.floor(v).astype(np.int64), np.floor(u).astype(np.int64)].astype(np.float64)
         valid = (d > 0) & np.isfinite(d)
         ids, z, d = ids[valid], z[valid], d[valid]
+        agree_metres, agree_relative = view.agreement or (AGREE_METRES, AGREE_RELATIVE)
         margin = agree_metres + agree_relative * z
         seen[ids[np.abs(d - z) <= margin]] += 1
         through[ids[d > z + margin]] += 1

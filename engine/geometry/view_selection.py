@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .cameras import project_points
+from .cameras import project_points, world_to_camera
 
 
 # The keyframe rule's defaults (vortx-spec.md section 2): the reconstruction's settings and the pose
@@ -64,17 +64,53 @@ def views_seeing_points(points: np.ndarray, Ks: np.ndarray, poses: np.ndarray, s
     points: (M, 3) world; Ks: (V, 3, 3) pixels; poses: (V, 4, 4) camera-to-world; sizes: (V, 2)
     (width, height) in pixels of K. "Sees" = projects to 0 <= u < W, 0 <= v < H with z > 0 (pixel j
     covers [j, j + 1)). Views are processed `chunk` at a time to bound the (chunk, M) buffers.
+
+    A view's visible region is convex (five half-spaces), so the points' bounding box decides most
+    views from its 8 corners: all inside, the view sees every point; all outside one half-space, it
+    sees none. Only views whose border cuts the box project the points (a tile of a big space is
+    seen whole or not at all by most of its keyframes).
     """
     points = np.asarray(points, dtype=np.float64)
     sizes = np.asarray(sizes)
     seen = np.zeros(len(poses), dtype=bool)
-    for a in range(0, len(poses), chunk):
-        b = min(a + chunk, len(poses))
-        u, v, z = project_points(points, Ks[a:b], poses[a:b])
-        w, h = sizes[a:b, 0, None], sizes[a:b, 1, None]
+    if len(points) == 0 or len(poses) == 0:
+        return seen
+    inside_all, outside_one = _box_in_views(points.min(axis=0), points.max(axis=0), Ks, poses, sizes)
+    seen[inside_all] = True
+    open_views = np.flatnonzero(~inside_all & ~outside_one)
+    for a in range(0, len(open_views), chunk):
+        views = open_views[a:a + chunk]
+        u, v, z = project_points(points, Ks[views], poses[views])
+        w, h = sizes[views, 0, None], sizes[views, 1, None]
         inside = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        seen[a:b] = inside.any(axis=1)
+        seen[views] = inside.any(axis=1)
     return seen
+
+
+# Corners this close to a view's border (relative to their depth) leave the view to the exact test.
+_BORDER_MARGIN = 1e-6
+
+
+def _box_in_views(lo: np.ndarray, hi: np.ndarray, Ks: np.ndarray, poses: np.ndarray, sizes: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """For the box [lo, hi] (3,) world: (V,) bool "all 8 corners inside view v's visible region" and
+    (V,) bool "all 8 corners outside one of its half-spaces" (z > 0, K_u . c >= 0, W z - K_u . c > 0,
+    K_v . c >= 0, H z - K_v . c > 0 for camera point c), each with a margin: a corner near a border
+    decides neither."""
+    bits = (np.arange(8)[:, None] >> np.arange(3)) & 1
+    corners = np.where(bits, hi, lo)  # (8, 3)
+    cam = world_to_camera(corners, np.asarray(poses, np.float64))  # (V, 8, 3)
+    Ks = np.asarray(Ks, np.float64)
+    z = cam[..., 2]
+    ku = np.einsum("vj,vmj->vm", Ks[:, 0], cam)  # z * u
+    kv = np.einsum("vj,vmj->vm", Ks[:, 1], cam)  # z * v
+    w, h = np.asarray(sizes, np.float64)[:, 0, None], np.asarray(sizes, np.float64)[:, 1, None]
+    scale = np.abs(z) * np.maximum(w, h) + np.linalg.norm(cam, axis=-1)
+    margin = _BORDER_MARGIN * scale
+    spaces = np.stack([z, ku, w * z - ku, kv, h * z - kv])  # (5, V, 8): > 0 inside
+    inside_all = np.all(spaces > margin, axis=(0, 2))
+    outside_one = np.any(np.all(spaces < -margin, axis=2), axis=0)
+    return inside_all, outside_one
 
 
 def sample_views(candidates: np.ndarray, max_views: int, rng: np.random.Generator) -> np.ndarray:

@@ -23,6 +23,7 @@ from ..model.stereo_evidence import FineFusion, meshable_voxels
 from ..stereo.depth_maps import DepthMap
 from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS
 from ..stereo.vertex_evidence import attach_evidence
+from .block_fusion import MIN_OBSERVATIONS
 from .colour import colour_mesh
 from .finish_step import finish_reconstruction
 from .features import FeatureCache, encode_keyframes, keyframe_image_size
@@ -214,7 +215,7 @@ def classical_fine_fusion(
     origin, tsdf, weight = stereo_fusion.classical_fusion(plan, list(maps), voxel_size, device, progress, cancel)
     offset = np.round((origin - plan.grid.origin) / voxel_size).astype(np.int64)
     return FineFusion(torch.from_numpy(tsdf).to(device), tuple(int(o) for o in offset),
-                      observed=torch.from_numpy(weight >= stereo_fusion.MIN_OBSERVATIONS).to(device))
+                      observed=torch.from_numpy(weight >= MIN_OBSERVATIONS).to(device))
 
 
 def _coarse_coords(plan: ReconPlan) -> torch.Tensor:

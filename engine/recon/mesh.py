@@ -9,6 +9,8 @@ Values live at voxel corners: a vertex at continuous grid index p lies at p * vo
 
 from __future__ import annotations
 
+from typing import Optional
+
 import numpy as np
 from skimage.measure import marching_cubes
 
@@ -17,14 +19,14 @@ from ..meshops import compact, vertex_normals
 from .recon_result import empty_mesh
 
 
-def dense_volume(indices: np.ndarray, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Scatter sparse values into their bounding box, NaN where no voxel exists.
+def dense_volume(indices: np.ndarray, values: np.ndarray, corner: Optional[np.ndarray] = None) -> tuple[np.ndarray, np.ndarray]:
+    """Scatter sparse values into their bounding box (from `corner` (3,) when given), NaN where no voxel exists.
 
     indices: (N, 3) int fine-voxel indices; values: (N,). Returns the volume (X, Y, Z) float32 and the
     index (3,) int64 of its first voxel.
     """
     indices = np.asarray(indices, dtype=np.int64)
-    offset = indices.min(axis=0)
+    offset = indices.min(axis=0) if corner is None else np.asarray(corner, dtype=np.int64)
     local = indices - offset
     volume = np.full(tuple(local.max(axis=0) + 1), np.nan, dtype=np.float32)
     volume[local[:, 0], local[:, 1], local[:, 2]] = values
@@ -50,15 +52,18 @@ def complete_cubes(valid: np.ndarray) -> np.ndarray:
     return cubes
 
 
-def extract_mesh(indices: np.ndarray, tsdf: np.ndarray, origin: np.ndarray, voxel_size: float) -> Mesh:
+def extract_mesh(indices: np.ndarray, tsdf: np.ndarray, origin: np.ndarray, voxel_size: float,
+                 corner: Optional[np.ndarray] = None) -> Mesh:
     """Mesh of the zero level of a sparse TSDF, in world metres; empty when there is no zero crossing.
 
     indices: (N, 3) int fine-voxel indices; tsdf: (N,) in [-1.05, 1.05]; origin: (3,) world position of
-    index 0. Colours are left None (see colour.py).
+    index 0. Colours are left None (see colour.py). corner (3,): the first index of a block of a larger
+    grid (indices >= corner); blocks that share a face then give bit-identical vertices on it, and no
+    cube twice (a cube belongs to the block of its last corner, see `complete_cubes`).
     """
     if len(indices) == 0:
         return empty_mesh()
-    volume, offset = dense_volume(indices, tsdf)
+    volume, offset = dense_volume(indices, tsdf, corner)
     if min(volume.shape) < 2:
         return empty_mesh()
     valid = ~np.isnan(volume)

@@ -64,13 +64,6 @@ def posed_frames(capture: Capture) -> tuple[list[int], list[str]]:
     return usable, warnings
 
 
-def room_size_warning(evidence: str, axes: tuple[bool, bool, bool], max_room_size: tuple[float, float, float]) -> str:
-    """The warning when `evidence` (what the room's extent rests on) spans more than the maximum room size."""
-    names = "".join(a for a, c in zip("xyz", axes) if c)
-    return (f"{evidence} span more than the maximum room size {list(max_room_size)} m along {names}; the "
-            "reconstruction is clipped around the median camera position (a larger maximum room size keeps more)")
-
-
 def plan_reconstruction(
     capture: Capture,
     settings: ReconSettings,
@@ -93,8 +86,6 @@ def plan_reconstruction(
     # The sparse points (SfM's, a COLMAP model's, the refinement's) say how large the room is; the
     # frusta only say where the cameras could see (scene_bounds.py).
     bounds = scene_bounds(Ks, poses, sizes, settings.frustum_depth, settings.max_room_size, points=capture.points)
-    if any(bounds.evidence_exceeds):
-        warnings.append(room_size_warning("the sparse points", bounds.evidence_exceeds, settings.max_room_size))
     grid, tiles = make_tiles(bounds, settings.voxel_size, settings.tile_size, settings.tile_height)
     for t, tile in enumerate(tiles):
         check(cancel)

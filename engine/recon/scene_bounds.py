@@ -5,15 +5,15 @@ Official VoRTX (vortx-spec.md section 4) takes the bounding box of every frame's
 the cameras *could* see, not where the room is: a camera tilted down a little has a frustum that
 reaches metres below the floor, so the frusta of an ordinary 3 m high room span more than 6 m in z.
 The extent of the room comes from evidence, the sparse points (SfM's, a COLMAP model's, the pose
-refinement's) that lie on its surfaces:
+refinement's, a phone's depth) that lie on its surfaces:
 - an axis along which the frusta stay within `max_room_size` keeps the frusta's extent (as official);
 - a longer axis is cut to where the sparse points are (their 0.5-99.5 percentile box, grown by
-  EVIDENCE_MARGIN_M, together with the camera centres);
-- only when that evidence itself spans more than `max_room_size`, or when there are no sparse points
-  to say (then nothing says the room is that large: the cut is silent), is the axis clipped to a
-  window of that length centred on the median camera centre (the median ignores a few outlier poses),
-  so one bad pose cannot make the voxel grid city-sized. `evidence_exceeds` are the axes where the
-  evidence really is larger than the maximum room size: the planner warns about those only.
+  EVIDENCE_MARGIN_M, together with the camera centres), however long that is: a 32 m corridor is
+  reconstructed whole, in blocks whose memory does not grow with it (engine/recon/block_fusion.py);
+- only when there are no sparse points to say is such an axis clipped to a window of `max_room_size`
+  centred on the median camera centre (the median ignores a few outlier poses), so frusta alone
+  cannot make the voxel grid city-sized. `evidence_exceeds` are the axes where the evidence is larger
+  than the maximum room size (reported, not cut).
 World Z is up, so the third entry of `max_room_size` is the room height allowance. The stereo method
 adds its own evidence afterwards, its depth maps (`engine/recon/stereo_fusion.py`).
 """
@@ -38,10 +38,10 @@ SPARSE_POINTS = "sparse points"
 class SceneBounds:
     minimum: np.ndarray  # (3,) world metres
     maximum: np.ndarray  # (3,) world metres
-    clipped: tuple[bool, bool, bool]  # which axes were cut to max_room_size around the median camera
+    clipped: tuple[bool, bool, bool]  # which axes were cut to max_room_size around the median camera (no evidence)
     # What the extent rests on: FRUSTA (no sparse points), or SPARSE_POINTS (the frusta cut to them).
     source: str = FRUSTA
-    # The axes along which the evidence (sparse points) itself spans more than max_room_size.
+    # The axes along which the evidence (sparse points) itself spans more than max_room_size (kept whole).
     evidence_exceeds: tuple[bool, bool, bool] = (False, False, False)
 
     @property
@@ -69,7 +69,7 @@ def scene_bounds(
     points: Optional[np.ndarray] = None,
 ) -> SceneBounds:
     """Bounds of all frusta cut at `depth`, cut to the sparse `points` (N, 3) where the frusta are
-    longer than `max_room_size`, clipped per axis to `max_room_size` (see module doc).
+    longer than `max_room_size`; without points, clipped per axis to `max_room_size` (see module doc).
 
     Ks: (F, 3, 3); poses: (F, 4, 4) camera-to-world; sizes: (F, 2) (width, height) in pixels of K.
     """
@@ -95,7 +95,7 @@ def scene_bounds(
         cut = too_long & (cut_hi > cut_lo)  # points outside every frustum say nothing about what is seen
         lo, hi = np.where(cut, cut_lo, lo), np.where(cut, cut_hi, hi)
         exceeds = hi - lo > limit
-        clipped = exceeds
+        clipped = np.zeros(3, dtype=bool)
     else:
         clipped = too_long
     centre = np.median(centres, axis=0)

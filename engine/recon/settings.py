@@ -118,11 +118,13 @@ class ReconSettings:
     frustum_depth: float = setting(
         4.0, "scene bounds = the camera frusta cut at this depth in metres (official: 4 m)",
         (CLI, BLENDER), min=0.1, max=100.0, label="Frustum Depth")
-    # Bounds larger than this (metres, x/y/z) are clipped around the median camera centre, so one
-    # bad pose or a camera looking down a corridor cannot blow the voxel grid up to city size.
+    # Where only the camera frusta say how large the space is (no sparse points, no depth), bounds larger
+    # than this (metres, x/y/z) are clipped around the median camera centre, so a camera looking down a
+    # corridor cannot blow the voxel grid up to city size. Surfaces the evidence shows are never cut.
     max_room_size: tuple[float, float, float] = setting(
-        (20.0, 20.0, 6.0), "clip the scene to this box in metres around the median camera, so a stray pose "
-        "cannot make it city-sized", (CLI, BLENDER), min=0.5, max=1000.0, metavar=("X", "Y", "Z"))
+        (20.0, 20.0, 6.0), "where nothing but the camera frusta says how large the space is, clip it to this box "
+        "in metres around the median camera (surfaces seen in the photos are kept whole, however large)",
+        (CLI, BLENDER), min=0.5, max=1000.0, metavar=("X", "Y", "Z"))
     # None = the size the weights were trained at (VortxConfig.image_long_side: 640 for the official model).
     image_long_side: Optional[int] = setting(
         None, "long side in pixels the photos are resized to for the network", (CLI, BLENDER), methods=("vortx",), min=32, max=4096,

@@ -20,19 +20,17 @@ from ..stereo.fused_tsdf import fuse_depth_maps
 from ..stereo.options import MATCHER_PATCHMATCH, StereoOptions
 from ..stereo.sensor_maps import sensor_depth_map
 from ..stereo.depth_maps import DepthMap
-from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS, drop_unsupported_pieces, fuse_stereo_evidence
+from ..stereo.fused_tsdf import CLASSICAL_TRUNCATION_VOXELS, drop_unsupported_pieces
 from ..stereo.vertex_evidence import attach_evidence
+from .block_fusion import fuse_blocks
 from .colour import colour_mesh
 from .finish_step import finish_reconstruction
 from .memory import PeakMemory
-from .mesh import extract_mesh
-from .plan import ReconPlan, plan_reconstruction, posed_frames, room_size_warning
+from .plan import ReconPlan, plan_reconstruction, posed_frames
 from .scene_bounds import evidence_box
 from .recon_result import ReconResult, StageTimer, empty_mesh
 from .settings import ReconSettings
 from .tiles import TileState
-
-MIN_OBSERVATIONS = 1  # depth maps that must have updated a voxel before it can carry a surface
 
 
 def stereo_options(settings: ReconSettings, device: torch.device) -> StereoOptions:
@@ -104,24 +102,17 @@ def depth_points_box(maps: list[DepthMap], margin: float, stride: int = 4) -> Op
     return lo - margin, hi + margin
 
 
-def depth_span_warning(plan: ReconPlan, maps: list[DepthMap], max_room_size: tuple[float, float, float]) -> Optional[str]:
-    """The warning when the stereo depths (evidence of surfaces, unlike the frusta) span more than the
-    maximum room size along an axis the plan has not already warned about; None otherwise."""
-    box = depth_points_box(maps, margin=0.0)
-    if box is None:
-        return None
-    exceeds = (box[1] - box[0] > np.asarray(max_room_size, dtype=np.float64)) & ~np.array(plan.bounds.evidence_exceeds)
-    return room_size_warning("the stereo depths", tuple(bool(e) for e in exceeds), max_room_size) if exceeds.any() else None
-
-
 def fusion_grid(plan: ReconPlan, maps: list[DepthMap], voxel_size: float) -> tuple[np.ndarray, tuple[int, int, int]]:
-    """Origin (3,) and dims of a dense grid on the plan's voxel lattice over the scene bounds cut to
-    where stereo found surfaces (the frusta at the bounds' depth reach metres past the walls, and
-    fusion's cost is the grid's volume)."""
+    """Origin (3,) and dims of the grid on the plan's voxel lattice that covers the surfaces stereo found:
+    the scene bounds cut to the depth maps' box (the frusta at the bounds' depth reach metres past the
+    walls, and fusion's cost is the grid's volume). Along an axis the bounds clipped for want of
+    evidence (scene_bounds.py), the depth maps are that evidence: their box is taken whole."""
     lo, hi = plan.bounds.minimum.astype(np.float64), plan.bounds.maximum.astype(np.float64)
     box = depth_points_box(maps, margin=4 * CLASSICAL_TRUNCATION_VOXELS * voxel_size)
     if box is not None:
-        lo, hi = np.maximum(lo, box[0]), np.minimum(hi, box[1])
+        clipped = np.array(plan.bounds.clipped)
+        lo = np.where(clipped, box[0], np.maximum(lo, box[0]))
+        hi = np.where(clipped, box[1], np.minimum(hi, box[1]))
         hi = np.maximum(hi, lo + 2 * voxel_size)
     lattice = plan.grid.origin.astype(np.float64)
     origin = lattice + np.floor((lo - lattice) / voxel_size) * voxel_size
@@ -167,9 +158,6 @@ def run_stereo_fusion(
         stereo_stages: dict[str, float] = {}
         with timer.stage("stereo depth"):
             maps = stereo_depth_maps(capture, plan, options, progress, cancel, stereo_stages)
-        span_warning = depth_span_warning(plan, maps, settings.max_room_size)
-        if span_warning is not None:
-            plan.warnings.append(span_warning)
         stats["stereo"] = {
             "references": len(maps), "image_size": list(maps[0].depth.shape[::-1]) if maps else [],
             "completeness_mean": round(float(np.mean([m.completeness for m in maps])), 4) if maps else 0.0,
@@ -179,24 +167,18 @@ def run_stereo_fusion(
         if options.sensor_depth and any(f.sensor_depth is not None for f in plan.keyframes):
             stats["stereo"]["sensor_depth_maps"] = int(sum(plan.keyframes[m.frame].sensor_depth is not None for m in maps))
         check(cancel)
-        with timer.stage("TSDF fusion"):
-            fused = None
-            if options.evidence_fusion:
-                origin, dims = fusion_grid(plan, maps, settings.voxel_size)
-                fused = fuse_stereo_evidence(maps, origin, dims, settings.voxel_size, CLASSICAL_TRUNCATION_VOXELS, device,
-                                             progress, cancel)
-                tsdf, observed = fused.tsdf, fused.surface_voxels(options.min_support)
-            else:
-                origin, tsdf, weight = classical_fusion(plan, maps, settings.voxel_size, device, progress, cancel)
-                observed = weight >= MIN_OBSERVATIONS
+        with timer.stage("TSDF fusion"):  # fused and meshed block by block (block_fusion.py)
+            origin, dims = fusion_grid(plan, maps, settings.voxel_size)
+            blocks = fuse_blocks(maps, origin, dims, settings.voxel_size, CLASSICAL_TRUNCATION_VOXELS, device,
+                                 options.evidence_fusion, options.min_support, progress, cancel)
+            mesh = blocks.mesh
+            stats["fusion"] = {"grid": list(dims), "blocks": blocks.blocks, "block_voxels": list(blocks.block_dims)}
         check(cancel)
         report(progress, "mesh", 0, 1)
         with timer.stage("mesh"):
-            mesh = extract_mesh(np.argwhere(observed), tsdf[observed], origin, settings.voxel_size)
-            if fused is not None and options.piece_min_views > 0:
-                mesh, stats["pieces"] = drop_unsupported_pieces(mesh, fused.support, origin, settings.voxel_size,
-                                                                options.piece_min_views)
-            del tsdf, observed, fused
+            if blocks.vertex_support is not None and options.piece_min_views > 0:
+                mesh, stats["pieces"] = drop_unsupported_pieces(mesh, blocks.vertex_support, options.piece_min_views)
+            del blocks
         report(progress, "mesh", 1, 1)
         check(cancel)
         with timer.stage("finish"):

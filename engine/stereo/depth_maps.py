@@ -44,6 +44,9 @@ class DepthMap:
     sources: np.ndarray  # (S,) int64 positions of the source frames used
     depth_range: tuple[float, float]  # (near, far) metres swept
     normal: Optional[np.ndarray] = None  # (h, w, 3) float32 unit camera-frame normals (PatchMatch's planes), None for the sweep
+    # (metres, share of the depth) a point may lie off this map's depth and be the surface it saw
+    # (engine/finish/free_space.py's votes); None: stereo's accuracy
+    agreement: Optional[tuple[float, float]] = None
 
     @property
     def completeness(self) -> float:

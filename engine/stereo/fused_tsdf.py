@@ -37,8 +37,10 @@ def fuse_depth_maps(
     device: Optional[torch.device] = None,
     progress: Optional[ProgressCallback] = None,
     cancel: Optional[CancelToken] = None,
+    start: Sequence[int] = (0, 0, 0),
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(tsdf, weight), each (X, Y, Z) float32, of the depth maps on the grid origin + index * voxel_size.
+    """(tsdf, weight), each (X, Y, Z) float32, of the depth maps on the grid origin + index * voxel_size,
+    for the voxels from index `start` on (a block of a larger grid: `fuse_tsdf`).
 
     tsdf follows the ground-truth convention (negative in front of surfaces, +1 unobserved);
     weight counts the depth maps that updated a voxel.
@@ -48,7 +50,7 @@ def fuse_depth_maps(
         return np.ones(dims, np.float32), np.zeros(dims, np.float32)
     tsdf, weight = fuse_tsdf([m.depth for m in maps], np.stack([m.K for m in maps]), np.stack([m.pose for m in maps]),
                              origin, dims, voxel_size, truncation_voxels * voxel_size, depth_cap=None, device=device,
-                             progress=progress, cancel=cancel)
+                             progress=progress, cancel=cancel, start=start)
     return tsdf.cpu().numpy(), weight.cpu().numpy()
 
 
@@ -78,38 +80,43 @@ def fuse_stereo_evidence(
     device: Optional[torch.device] = None,
     progress: Optional[ProgressCallback] = None,
     cancel: Optional[CancelToken] = None,
+    start: Sequence[int] = (0, 0, 0),
 ) -> FusedStereo:
     """The depth maps fused with each depth weighted by its evidence (`depth_filters.observation_weights`),
-    bilinear depth lookups, and the per-voxel count of agreeing views."""
+    bilinear depth lookups, and the per-voxel count of agreeing views; `start` as in `fuse_depth_maps`."""
     dims = tuple(int(d) for d in dims)
     if not maps:
         return FusedStereo(np.ones(dims, np.float32), np.zeros(dims, np.float32), np.zeros(dims, np.float32))
     evidence = FusionEvidence([observation_weights(m.depth, m.confidence, m.K, m.normal) for m in maps])
     tsdf, observations = fuse_tsdf([m.depth for m in maps], np.stack([m.K for m in maps]), np.stack([m.pose for m in maps]),
                                    origin, dims, voxel_size, truncation_voxels * voxel_size, depth_cap=None,
-                                   device=device, progress=progress, cancel=cancel, evidence=evidence)
+                                   device=device, progress=progress, cancel=cancel, evidence=evidence, start=start)
     return FusedStereo(tsdf.cpu().numpy(), observations.cpu().numpy(), evidence.support.cpu().numpy())
 
 
-def piece_support(mesh: Mesh, support: np.ndarray, origin: np.ndarray, voxel_size: float) -> tuple[np.ndarray, np.ndarray]:
-    """Per face the connected piece it belongs to, and per piece the most views that agree on any of
-    its vertices' voxels: (face_piece (F,) int64, piece_views (P,) float32)."""
-    pieces, _ = face_pieces(mesh.faces, len(mesh.vertices))
+def vertex_support(mesh: Mesh, support: np.ndarray, origin: np.ndarray, voxel_size: float) -> np.ndarray:
+    """Per vertex (V,) float32 the views that agree on a surface at its nearest voxel of `support` (X, Y, Z)."""
     index = np.clip(np.round((mesh.vertices - origin) / voxel_size).astype(np.int64), 0, np.array(support.shape) - 1)
-    vertex_views = support[index[:, 0], index[:, 1], index[:, 2]]
+    return support[index[:, 0], index[:, 1], index[:, 2]]
+
+
+def piece_support(mesh: Mesh, vertex_views: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per face the connected piece it belongs to, and per piece the most views that agree on any of
+    its vertices (`vertex_views` (V,)): (face_piece (F,) int64, piece_views (P,) float32)."""
+    pieces, _ = face_pieces(mesh.faces, len(mesh.vertices))
     face_views = vertex_views[mesh.faces].max(axis=1)
     piece_views = np.zeros(int(pieces.max()) + 1 if len(pieces) else 0, np.float32)
     np.maximum.at(piece_views, pieces, face_views)
     return pieces, piece_views
 
 
-def drop_unsupported_pieces(mesh: Mesh, support: np.ndarray, origin: np.ndarray, voxel_size: float,
-                            min_views: int) -> tuple[Mesh, dict]:
-    """The mesh without the connected pieces that fewer than `min_views` views agree on anywhere:
-    pieces go by evidence, not by size (a small real object seen by many views stays)."""
+def drop_unsupported_pieces(mesh: Mesh, vertex_views: np.ndarray, min_views: int) -> tuple[Mesh, dict]:
+    """The mesh without the connected pieces that fewer than `min_views` views agree on anywhere
+    (`vertex_views` (V,): per vertex): pieces go by evidence, not by size (a small real object seen by
+    many views stays)."""
     if len(mesh.faces) == 0:
         return mesh, {"pieces": 0, "dropped_pieces": 0, "dropped_faces": 0}
-    pieces, piece_views = piece_support(mesh, support, origin, voxel_size)
+    pieces, piece_views = piece_support(mesh, vertex_views)
     keep = piece_views[pieces] >= min_views
     return keep_faces(mesh, keep), {"pieces": int(len(piece_views)), "dropped_pieces": int((piece_views < min_views).sum()),
                                     "dropped_faces": int((~keep).sum())}

@@ -30,6 +30,11 @@ MEDIUM_CONFIDENCE = 1  # ARConfidenceLevel.medium
 # Fusion confidence of a medium sensor depth (a high one counts 1). Without a confidence map (an app
 # that exports none) every sensor depth counts as medium.
 MEDIUM_WEIGHT = 0.5
+# How far off its depth a surface may lie and still be what the sensor saw (metres, share of the
+# depth), for the finishing's votes: the corridor's LiDAR agrees with itself within 1 cm (median)
+# between neighbouring frames; ARKit's drift across a walk adds a few cm. Stereo's margin (8 cm +
+# 3 %) would call a door 5 cm behind its wall "on" the wall.
+SENSOR_AGREEMENT = (0.02, 0.01)
 
 
 def sensor_at_size(sensor: SensorDepth, size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -64,4 +69,5 @@ def sensor_depth_map(keyframe: int, frame: Frame, long_side: int, with_normals: 
     valid = depth[depth > 0]
     return DepthMap(frame=keyframe, depth=depth, confidence=weight, K=np.asarray(K, np.float64),
                     pose=np.asarray(frame.pose, np.float64), sources=np.zeros(0, np.int64),
-                    depth_range=(float(valid.min()), float(valid.max())) if valid.size else (0.0, 0.0), normal=normal)
+                    depth_range=(float(valid.min()), float(valid.max())) if valid.size else (0.0, 0.0), normal=normal,
+                    agreement=SENSOR_AGREEMENT)

@@ -42,6 +42,7 @@ def fuse_tsdf(
     progress: Optional[ProgressCallback] = None,
     cancel: Optional[CancelToken] = None,
     evidence: Optional["FusionEvidence"] = None,
+    start: Sequence[int] = (0, 0, 0),
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Fuse depth maps into a TSDF in the ground-truth sign convention.
 
@@ -49,6 +50,8 @@ def fuse_tsdf(
     lazy loader works). K (3, 3) or (N, 3, 3) in pixels of the depth map, pixel centres at integer
     (0, 0) covering [0, 1)^2. cam_to_world (N, 4, 4) OpenCV axes; frames with non-finite poses are skipped.
     origin (3,) world position of voxel (0, 0, 0); dims (X, Y, Z). depth_cap None keeps all depth.
+    start (3,): the first fused voxel's index on that lattice, so a block of a larger grid (dims from
+    `start`) gets bit for bit the values the whole grid would give its voxels.
     Returns (tsdf, weight), each (X, Y, Z) float32 on `device`; weight counts the frames that updated a voxel.
 
     evidence: None for the ground-truth rule above (every observation weighs 1, nearest pixel). For
@@ -71,7 +74,7 @@ def fuse_tsdf(
         check(cancel)
         if np.isfinite(poses[i]).all():
             _integrate(tsdf, weight, depths[i], Ks[i], poses[i], np.asarray(origin, np.float64), voxel_size,
-                       trunc, depth_cap, evidence, i)
+                       trunc, depth_cap, evidence, i, start)
         report(progress, "TSDF fusion", i + 1, n)
     if evidence is None:
         return finalize_tsdf(tsdf, weight), weight
@@ -160,9 +163,12 @@ def _integrate(
     depth_cap: Optional[float],
     evidence: Optional[FusionEvidence] = None,
     frame: int = 0,
+    start: Sequence[int] = (0, 0, 0),
 ) -> None:
-    """Update the running mean with one frame, touching only the voxels in its frustum's bounding box."""
+    """Update the running mean with one frame, touching only the voxels in its frustum's bounding box.
+    The arrays hold the voxels from index `start` (3,) of the lattice origin + index * voxel_size."""
     device = tsdf.device
+    start = np.asarray(start, np.int64)
     depth_np = np.nan_to_num(np.asarray(depth_np, np.float32), nan=0.0, posinf=0.0, neginf=0.0)
     if depth_cap is not None:
         depth_np = np.where(depth_np > depth_cap, 0.0, depth_np).astype(np.float32)
@@ -175,8 +181,8 @@ def _integrate(
     # Only voxels with z <= max_depth + trunc and inside the image can change; one voxel of slack
     # around the box keeps float error at the border from dropping any.
     corners = np.vstack([pose[:3, 3], frustum_corners(K, pose, width, height, max_depth + trunc)])
-    lo = np.floor((corners.min(axis=0) - origin) / voxel_size).astype(np.int64) - 1
-    hi = np.ceil((corners.max(axis=0) - origin) / voxel_size).astype(np.int64) + 2
+    lo = np.floor((corners.min(axis=0) - origin) / voxel_size).astype(np.int64) - 1 - start
+    hi = np.ceil((corners.max(axis=0) - origin) / voxel_size).astype(np.int64) + 2 - start
     shape = np.array(tsdf.shape)
     lo, hi = np.clip(lo, 0, shape), np.clip(hi, 0, shape)
     if np.any(hi <= lo):
@@ -186,7 +192,7 @@ def _integrate(
     # P @ (x, y, z, 1) = P[:, 0] x_i + P[:, 1] y_j + (P[:, 2] z_k + P[:, 3]), so three small outer
     # sums replace a per-voxel matrix product (this loop is the whole cost of ground-truth generation).
     P = torch.as_tensor(projection_matrix(K, pose), dtype=torch.float64, device=device)
-    xs, ys, zs = (axis_positions(origin, lo[a], hi[a] - lo[a], voxel_size, a, device=device) for a in range(3))
+    xs, ys, zs = (axis_positions(origin, start[a] + lo[a], hi[a] - lo[a], voxel_size, a, device=device) for a in range(3))
 
     def project(row: int) -> torch.Tensor:
         return (P[row, 0] * xs[:, None, None] + P[row, 1] * ys[None, :, None]

@@ -73,3 +73,26 @@ def test_sampling_takes_all_when_few_and_top_up_fills_to_the_count():
     full = top_up_views(np.array([3]), 6, 4, rng)
     assert 3 in full and len(set(full.tolist())) == 4
     assert len(top_up_views(np.array([0, 1]), 2, 5, rng)) == 5  # fewer frames than views: repeats
+
+
+def test_views_seeing_points_matches_projecting_every_point_for_boxes_inside_outside_and_across_views():
+    """The bounding-box shortcut decides nothing the per-point projection would decide otherwise:
+    60 cameras looking every way from inside a 6 m space, blocks of points of every size."""
+    rng = np.random.default_rng(3)
+    room = box_room(n_frames=4, image_size=(64, 48))
+    K = np.repeat(room.K[:1], 60, axis=0)
+    poses = np.repeat(np.eye(4)[None], 60, axis=0)
+    for i in range(60):
+        q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+        poses[i, :3, :3] = q * np.sign(np.linalg.det(q))
+        poses[i, :3, 3] = rng.uniform(-3, 3, size=3)
+    sizes = np.tile([64, 48], (60, 1))
+    decided = 0
+    for _ in range(40):
+        centre, half = rng.uniform(-4, 4, size=3), rng.uniform(0.05, 2.0, size=3)
+        points = centre + rng.uniform(-1, 1, size=(500, 3)) * half
+        u, v, z = project_points(points, K, poses)
+        expected = ((z > 0) & (u >= 0) & (u < 64) & (v >= 0) & (v < 48)).any(axis=1)
+        assert views_seeing_points(points, K, poses, sizes).tolist() == expected.tolist()
+        decided += int(expected.sum())
+    assert decided > 100  # the draws put blocks both inside and across views

@@ -1,7 +1,7 @@
 """Bounds from evidence: the room's extent comes from its sparse points (and, for stereo, its depth
 maps), not from how far the camera frusta reach. An ordinary room (the bundled demo room, whose
-tilted frusta span more than 6 m in z) gives no "maximum room size" warning; a capture whose points
-really span 40 m does, and is clipped."""
+tilted frusta span more than 6 m in z) is cut to its points; a space whose points or depths really
+span 40 m is kept whole (fused block by block), and only frusta with no evidence are clipped."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ from engine.mesh_io import read_ply
 from engine.recon import ReconSettings
 from engine.recon.plan import plan_reconstruction
 from engine.recon.scene_bounds import FRUSTA, SPARSE_POINTS, scene_bounds
-from engine.recon.stereo_fusion import depth_span_warning
+from engine.recon.stereo_fusion import fusion_grid
 from engine.stereo.depth_maps import DepthMap
 
 DEMO = Path(__file__).resolve().parents[3] / "samples" / "demo_room"
@@ -55,51 +55,42 @@ def _plan(capture: Capture, **settings):
     return plan_reconstruction(capture, ReconSettings(voxel_size=0.16, **settings))
 
 
-def _warned(plan) -> list[str]:
-    return [w for w in plan.warnings if "maximum room size" in w]
-
-
-def test_a_room_whose_frusta_reach_below_the_floor_gives_no_warning() -> None:
+def test_a_room_whose_frusta_reach_below_the_floor_is_cut_to_its_points() -> None:
     room = np.array([4.0, 5.0, 3.0])
     poses = _room_walk(room / 2)
     frusta = scene_bounds(K[None].repeat(len(poses), 0), np.stack(poses), np.array([SIZE] * len(poses)))
     assert frusta.clipped[2]  # the frusta alone span more than a 6 m high room
     points = _surface_points([0, 0, 0], room, 3000)
     plan = _plan(_capture(poses, points))
-    assert _warned(plan) == []
-    assert plan.bounds.source == SPARSE_POINTS and not any(plan.bounds.clipped)
+    assert plan.bounds.source == SPARSE_POINTS and not any(plan.bounds.clipped) and not any(plan.bounds.evidence_exceeds)
     # z: the points' extent (floor to ceiling) and a margin, not the frusta's 6 m window.
     assert -0.6 < plan.bounds.minimum[2] <= 0.0 and 3.0 <= plan.bounds.maximum[2] < 3.6
     # Without sparse points nothing says the room is larger than allowed: clipped, silently.
     silent = _plan(_capture(poses, None))
-    assert _warned(silent) == [] and silent.bounds.source == FRUSTA and silent.bounds.clipped[2]
+    assert silent.warnings == [] and silent.bounds.source == FRUSTA and silent.bounds.clipped[2]
     assert silent.bounds.size[2] <= 6.0 + 1e-9
 
 
-def test_the_demo_room_with_points_on_its_surfaces_gives_no_warning() -> None:
+def test_the_demo_room_with_points_on_its_surfaces_is_within_the_room_size() -> None:
     K_demo = np.loadtxt(DEMO / "truth" / "intrinsic" / "intrinsic_color.txt")[:3, :3]
     poses = [np.loadtxt(p) for p in sorted((DEMO / "truth" / "pose").glob("*.txt"))]
     truth = read_ply(DEMO / "truth" / "mesh_gt.ply")
     # Sparse points stand-in: a few thousand of the true surface's vertices (SfM finds ~2700).
     points = truth.vertices[np.random.default_rng(0).choice(len(truth.vertices), 2700)]
     plan = _plan(_capture(poses, points, K_demo))
-    assert _warned(plan) == []
+    assert not any(plan.bounds.evidence_exceeds)
     assert np.all(plan.bounds.size <= np.array(ReconSettings().max_room_size))
 
 
-def test_points_that_really_span_40_m_are_warned_about_and_clipped() -> None:
+def test_points_that_really_span_40_m_are_kept_whole() -> None:
     # A 40 m hall walked end to end: cameras every 2 m along x, looking at both side walls.
     poses = [look_along(np.array([x, 2.0 + 0.3 * (i % 2), 1.5]), [0.3, 1.0 if i % 2 else -1.0, -0.1])
              for i, x in enumerate(np.arange(0.0, 40.0, 2.0))]
     points = _surface_points([-0.5, 0, 0], [40.5, 4.0, 3.0], 4000)
     plan = _plan(_capture(poses, points))
-    (warning,) = _warned(plan)
-    assert warning.startswith("the sparse points span more than the maximum room size [20.0, 20.0, 6.0] m along x;")
-    assert plan.bounds.evidence_exceeds == (True, False, False) and plan.bounds.clipped == (True, False, False)
-    assert abs(plan.bounds.size[0] - 20.0) < 1e-9
-    # A larger allowance keeps the whole hall, without a warning.
-    roomy = _plan(_capture(poses, points), max_room_size=(50.0, 20.0, 6.0))
-    assert _warned(roomy) == [] and roomy.bounds.size[0] > 40.0
+    assert plan.bounds.evidence_exceeds == (True, False, False) and not any(plan.bounds.clipped)
+    assert plan.warnings == []
+    assert plan.bounds.minimum[0] < 0.0 and plan.bounds.maximum[0] > 40.0
 
 
 def _depth_map(pose: np.ndarray, depth: float) -> DepthMap:
@@ -109,13 +100,17 @@ def _depth_map(pose: np.ndarray, depth: float) -> DepthMap:
     return DepthMap(0, d, np.ones_like(d), K_small, pose, np.zeros(0, np.int64), (0.5, 5.0))
 
 
-def test_stereo_depths_spanning_40_m_are_warned_about_and_a_room_is_not() -> None:
+def test_stereo_depths_spanning_40_m_give_a_fusion_grid_over_all_of_them() -> None:
+    """Without sparse points the frusta are clipped to the maximum room size; the depth maps are the
+    evidence then, and the fusion grid covers every depth they saw, in a room and in a 40 m hall."""
+    voxel = 0.16
     room_poses = _room_walk([2.0, 2.5])
     plan = _plan(_capture(room_poses, None))
-    room_maps = [_depth_map(p, 2.0) for p in room_poses]
-    assert depth_span_warning(plan, room_maps, ReconSettings().max_room_size) is None
+    origin, dims = fusion_grid(plan, [_depth_map(p, 2.0) for p in room_poses], voxel)
+    # Depths 2 m out from a 0.4 m ring, image corners included (about 7.4 m) and the fusion margin (5 m).
+    assert np.all(np.array(dims[:2]) * voxel < 13.0)
     hall = [look_along(np.array([x, 0.0, 1.5]), [0.0, 1.0, 0.0]) for x in np.arange(0.0, 41.0, 2.0)]
     hall_plan = _plan(_capture(hall, None))
-    warning = depth_span_warning(hall_plan, [_depth_map(p, 3.0) for p in hall], ReconSettings().max_room_size)
-    assert warning is not None and warning.startswith("the stereo depths span more than the maximum room size")
-    assert "along x;" in warning
+    assert hall_plan.bounds.clipped[0] and hall_plan.bounds.size[0] <= 20.0 + 1e-9
+    origin, dims = fusion_grid(hall_plan, [_depth_map(p, 3.0) for p in hall], voxel)
+    assert origin[0] < 0.0 and origin[0] + dims[0] * voxel > 40.0

@@ -9,7 +9,7 @@ from engine.geometry.cameras import look_at
 from engine.recon.mesh import extract_mesh
 from engine.stereo.depth_maps import DepthMap
 from engine.stereo.fused_tsdf import fuse_depth_maps
-from engine.stereo.fused_tsdf import drop_unsupported_pieces, fuse_stereo_evidence
+from engine.stereo.fused_tsdf import drop_unsupported_pieces, fuse_stereo_evidence, vertex_support
 
 VOXEL = 0.04
 W, H = 64, 48
@@ -63,7 +63,7 @@ def test_pieces_go_by_the_views_that_support_them() -> None:
     observed = fused.observations > 0
     mesh = extract_mesh(np.argwhere(observed), fused.tsdf[observed], origin, VOXEL)
     assert faces_near_the_camera(mesh) > 0
-    kept, stats = drop_unsupported_pieces(mesh, fused.support, origin, VOXEL, min_views=2)
+    kept, stats = drop_unsupported_pieces(mesh, vertex_support(mesh, fused.support, origin, VOXEL), min_views=2)
     assert faces_near_the_camera(kept) == 0
     assert stats["dropped_pieces"] >= 1 and len(kept.faces) > 100
 
