@@ -69,6 +69,7 @@ SHIFT_ROUNDS = 3  # the shifted surface is found again this many times (and reac
 FLAT_BAND_SIGMAS = 2.5
 MIN_FLAT_BAND = 0.02  # m
 RELIEF_MIN_AREA = 0.04  # m^2 of cells off the plane's band (and none on it) together: relief, not crumple
+FURNITURE_MIN_HEIGHT = 0.1  # m over the floor: surface higher than this (and below the cameras) is furniture over it
 
 
 @dataclass
@@ -299,7 +300,10 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
     if plane.kind != WALL:  # the floor and ceiling stop at the walls, where a wall stands
         for wall in walls:
             along = wall.to_plane(centres)[:, 0]
-            wall_coords = wall.to_plane(centroids[np.abs(wall.distance(centroids)) <= tolerance])[:, 0]
+            # The wall's own surface (faces turned its way), not the floor and ceiling along its line:
+            # in an L-shaped room the inner wall's line crosses the other leg's floor.
+            own = (np.abs(wall.distance(centroids)) <= tolerance) & (normals @ wall.normal > FLATTEN_COS)
+            wall_coords = wall.to_plane(centroids[own])[:, 0]
             if len(wall_coords) == 0:
                 continue
             span = np.percentile(wall_coords, 1) - SNAP_DISTANCE, np.percentile(wall_coords, 99) + SNAP_DISTANCE
@@ -317,12 +321,32 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
             # The floor a camera stood over (and the ceiling it stood under) is in no photo near its foot,
             # yet walked on: closed too, where no view saw through it.
             fillable |= beneath_cameras(plane, centres, views) & ~votes.contradicted() & inside_walls
+            # A stretch some view saw something in front of is another room's, behind a wall (the inside
+            # of a U-shaped corridor, whose inner walls are no room-box planes), unless something of
+            # this room stands over it below the cameras: the floor under a table or a chair closes.
+            fillable &= (votes.hidden == 0) | under_furniture(grid, centroids, views)
         grid.keep |= fillable.reshape(shape)
         # Closing holes, not inventing surface: an added stretch must touch surface that was seen.
         labels, count = ndimage.label(grid.keep)
         seen_labels = np.unique(labels[grid.observed & grid.keep])
         grid.keep &= np.isin(labels, seen_labels[seen_labels > 0]) & ~grid.relief
     return grid
+
+
+def under_furniture(grid: PlaneGrid, centroids: np.ndarray, views: Sequence[DepthView]) -> np.ndarray:
+    """(A*B,) bool, the grid's cells raveled: surface (face centroids (F, 3)) stands over the cell (or
+    a neighbouring one) between FURNITURE_MIN_HEIGHT above the plane and the cameras' median height
+    over it: a table, a chair, a cabinet. Only a floor has furniture over it; any other plane none."""
+    plane = grid.plane
+    over = np.zeros(grid.keep.shape, bool)
+    if plane.kind != FLOOR or not views:
+        return over.ravel()
+    camera_height = float(np.median(plane.distance(np.stack([np.asarray(v.pose, np.float64)[:3, 3] for v in views]))))
+    height = plane.distance(centroids)
+    standing = (height > FURNITURE_MIN_HEIGHT) & (height < camera_height)
+    i, j, inside = grid.cells_of(plane.to_plane(centroids[standing]))
+    over[i[inside], j[inside]] = True
+    return ndimage.binary_dilation(over, iterations=1).ravel()
 
 
 def beneath_cameras(plane: StructuralPlane, points: np.ndarray, views: Sequence[DepthView],

@@ -8,14 +8,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.finish.finishing import beneath_cameras, finish_mesh, typical_support
+from engine.finish.finishing import beneath_cameras, finish_mesh, plane_grid, typical_support
 from engine.finish.free_space import PlainDepthView, view_votes
 from engine.finish.modes import FINISH_CLEAN, FINISH_OFF, FINISH_ROOM
 from engine.finish.planes import CEILING, FLOOR, WALL, StructuralPlane, camera_horizon_up, face_geometry, find_structural_planes, room_up
 from engine.geometry.depth_render import render_depth
 from engine.mesh_io import Mesh
 from engine.observation import ADDED
-from fixtures_box_room import CABINET, DOOR, HOLE, ROOM, cameras, merge, rectangle, room_parts, truth_with_next_room
+from fixtures_box_room import CABINET, DOOR, HOLE, ROOM, box_parts, cameras, merge, rectangle, room_parts, truth_with_next_room
 
 
 @pytest.fixture(scope="module")
@@ -375,3 +375,81 @@ def test_surface_behind_a_wall_seen_from_behind_it_stays():
         front_views.append(PlainDepthView(render_depth(vertices, faces, K, pose, (96, 72)), K, pose))
     assert view_votes(vertices, front_views).seen.min() >= 2  # they do see it
     assert not _seen_from_behind(vertices, faces, all_behind, wall, front_views, min_views=2).any()
+
+
+def _l_corridor():
+    """An L of two 2 m corridors (x 0..6, y 0..2 and x 4..6, y 2..6) round a block of other rooms, a
+    table (x 1..2, y 0.4..1.2, top at 0.75 m) with no floor under it in the mesh, and 78 photos' depth
+    looking every way from both legs: (mesh, views, camera poses, the table's box)."""
+    Z = 2.5
+    table = (1.0, 2.0, 0.4, 1.2, 0.7, 0.75)
+    under_table = lambda s, t: table[0] <= s < table[1] and table[2] <= t < table[3]
+    seen = [
+        rectangle((0, 0, 0), (1, 0, 0), (0, 1, 0), 6.0, 2.0, (0, 0, 1), skip=under_table),  # corridor floor
+        rectangle((4, 2, 0), (1, 0, 0), (0, 1, 0), 2.0, 4.0, (0, 0, 1)),  # leg floor
+        rectangle((0, 0, Z), (1, 0, 0), (0, 1, 0), 6.0, 2.0, (0, 0, -1)),
+        rectangle((4, 2, Z), (1, 0, 0), (0, 1, 0), 2.0, 4.0, (0, 0, -1)),
+        rectangle((0, 0, 0), (1, 0, 0), (0, 0, 1), 6.0, Z, (0, 1, 0)),  # y = 0
+        rectangle((0, 0, 0), (0, 1, 0), (0, 0, 1), 2.0, Z, (1, 0, 0)),  # x = 0
+        rectangle((6, 0, 0), (0, 1, 0), (0, 0, 1), 6.0, Z, (-1, 0, 0)),  # x = 6
+        rectangle((4, 6, 0), (1, 0, 0), (0, 0, 1), 2.0, Z, (0, -1, 0)),  # y = 6
+        rectangle((0, 2, 0), (1, 0, 0), (0, 0, 1), 4.0, Z, (0, -1, 0)),  # inner y = 2
+        rectangle((4, 2, 0), (0, 1, 0), (0, 0, 1), 4.0, Z, (1, 0, 0)),  # inner x = 4
+        *box_parts(*table),
+    ]
+    vertices, faces = merge(seen)
+    K = np.array([[60.0, 0, 48], [0, 60.0, 36], [0, 0, 1]])
+
+    def camera(position, heading_deg, pitch_deg=25.0):
+        h, p = np.radians(heading_deg), np.radians(pitch_deg)
+        forward = np.array([np.cos(h) * np.cos(p), np.sin(h) * np.cos(p), -np.sin(p)])
+        right = np.cross(forward, [0, 0, 1.0])
+        right /= np.linalg.norm(right)
+        pose = np.eye(4)
+        pose[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+        pose[:3, 3] = position
+        return pose
+
+    poses = np.stack([camera((x, 1.0, 1.5), heading) for x in np.arange(0.5, 6.0, 0.5) for heading in (90.0, -90.0, 0.0, 180.0)]
+                     + [camera((5.0, y, 1.5), heading) for y in np.arange(2.5, 6.0, 0.5) for heading in (180.0, 0.0, 90.0, -90.0)])
+    views = [PlainDepthView(render_depth(vertices, faces, K, pose, (96, 72)), K, pose) for pose in poses]
+    return Mesh(vertices.astype(np.float32), faces.astype(np.int32)), views, poses, table
+
+
+def test_an_l_shaped_corridor_closes_the_floor_under_its_table_not_behind_its_inner_walls():
+    """The inner corner's walls (y = 2 up to x = 4, x = 4 from y = 2) cross the other leg's floor along
+    their lines: the floor of both legs is the corridor's and is finished; the block's floor, which every
+    photo that frames it sees an inner wall in front of, stays open; the floor under the table, which
+    the photos also see something in front of (the table top), is closed."""
+    mesh, views, poses, table = _l_corridor()
+    out = finish_mesh(mesh, views, poses[:, :3, 3], 0.04, FINISH_ROOM).mesh
+
+    centroids = out.vertices[out.faces].mean(axis=1)
+    added = out.attributes[ADDED][out.faces].min(axis=1) > 0.5
+    on_floor = np.abs(centroids[:, 2]) < 0.02
+    block = (centroids[:, 0] < 3.9) & (centroids[:, 1] > 2.1)
+    assert view_votes(np.array([[2.0, 4.0, 0.0]]), views).hidden[0] > 0  # framed, behind an inner wall
+    assert not (on_floor & block).any()
+    below_table = ((centroids[:, 0] > table[0] + 0.1) & (centroids[:, 0] < table[1] - 0.1)
+                   & (centroids[:, 1] > table[2] + 0.1) & (centroids[:, 1] < table[3] - 0.1))
+    assert (added & on_floor & below_table).sum() > 0.8 * 2 * (0.8 * 0.6) / 0.04 ** 2  # the cells under it, two faces each
+
+
+def test_floor_behind_a_wall_that_is_no_structural_plane_is_not_added():
+    """On the real U-shaped corridor the inner walls are no room-box planes, so nothing bounds the floor's
+    grid at them. Given only the floor and the outer walls, the floor grid still adds no cell that a
+    photo saw an inner wall in front of, and adds the cells under the table."""
+    mesh, views, _, table = _l_corridor()
+    axes_floor = np.array([[1.0, 0, 0], [0, 1.0, 0]])
+    floor = StructuralPlane(FLOOR, np.array([0.0, 0, 1]), 0.0, 20.0, axes_floor)
+    outer = [StructuralPlane(WALL, np.array(n, float), o, 10.0, np.array([np.cross(n, [0, 0, 1.0]), [0, 0, 1.0]]))
+             for n, o in (((0, 1, 0), 0.0), ((1, 0, 0), 0.0), ((-1, 0, 0), -6.0), ((0, -1, 0), -6.0))]
+    centroids, areas, normals = face_geometry(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64))
+    grid = plane_grid(floor, [floor, *outer], centroids, areas, normals, floor.distance(centroids), 0.08, 0.04, views,
+                      fill=True)
+    a, b = np.meshgrid(grid.origin[0] + (np.arange(grid.keep.shape[0]) + 0.5) * grid.cell,
+                       grid.origin[1] + (np.arange(grid.keep.shape[1]) + 0.5) * grid.cell, indexing="ij")
+    block = (a < 3.9) & (b > 2.1)
+    assert block.sum() > 1000 and not grid.added[block].any()
+    below_table = (a > table[0] + 0.05) & (a < table[1] - 0.05) & (b > table[2] + 0.05) & (b < table[3] - 0.05)
+    assert grid.added[below_table].all()
