@@ -122,6 +122,12 @@ class PlaneGrid:
     def added(self) -> np.ndarray:
         return self.keep & ~self.observed
 
+    def centres(self) -> np.ndarray:
+        """(A * B, 3) world centres of the cells, raveled, on the surface where it stands (`shift`)."""
+        ii, jj = np.meshgrid(np.arange(self.keep.shape[0]), np.arange(self.keep.shape[1]), indexing="ij")
+        coords = self.origin + (np.stack([ii.ravel(), jj.ravel()], axis=1) + 0.5) * self.cell
+        return self.plane.from_plane(coords) + self.shift.reshape(-1, 1) * self.plane.normal
+
     def cells_of(self, coords: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(i (N,), j (N,), inside (N,) bool) of in-plane coordinates (N, 2)."""
         index = np.floor((coords - self.origin) / self.cell).astype(np.int64)
@@ -293,9 +299,7 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
     grid.observed &= ~grid.relief
     # Faces of the 4 cm marching cubes leave single empty cells between their centroids: close them.
     grid.observed = ndimage.binary_closing(grid.observed, structure=np.ones((3, 3), bool), border_value=0) | grid.observed
-    ii, jj = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
-    centres = (plane.from_plane(np.stack([a0 + (ii.ravel() + 0.5) * cell, b0 + (jj.ravel() + 0.5) * cell], axis=1))
-               + grid.shift.reshape(-1, 1) * plane.normal)
+    centres = grid.centres()
     inside_walls = np.ones(len(centres), bool)
     if plane.kind != WALL:  # the floor and ceiling stop at the walls, where a wall stands
         for wall in walls:
@@ -331,6 +335,13 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
         seen_labels = np.unique(labels[grid.observed & grid.keep])
         grid.keep &= np.isin(labels, seen_labels[seen_labels > 0]) & ~grid.relief
     return grid
+
+
+def over_floor(grid: PlaneGrid, floor: PlaneGrid, margin_cells: int = 2) -> np.ndarray:
+    """(A, B) bool: which of `grid`'s cells lie over the floor's finished cells (grown by `margin_cells`)."""
+    footprint = ndimage.binary_dilation(floor.keep, iterations=margin_cells)
+    i, j, inside = floor.cells_of(floor.plane.to_plane(grid.centres()))
+    return (inside & footprint[i, j]).reshape(grid.keep.shape)
 
 
 def under_furniture(grid: PlaneGrid, centroids: np.ndarray, views: Sequence[DepthView]) -> np.ndarray:
@@ -510,11 +521,17 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
     grids = []
     drop = np.zeros(len(faces), bool)
     supported_behind = np.zeros(len(faces), bool)
-    for plane in planes:
+    floor_grid = None
+    for plane in sorted(planes, key=lambda p: p.kind != FLOOR):  # the floor first: the ceiling's fill needs it
         grid = plane_grid(plane, planes, centroids, areas, face_normals, plane.distance(centroids), tolerance, cell,
                           views, fill=mode == FINISH_ROOM)
         if grid is None:
             continue
+        if plane.kind == FLOOR:
+            floor_grid = grid
+        elif plane.kind == CEILING and floor_grid is not None:
+            # A room's ceiling is over its floor: none is added where there is no floor below.
+            grid.keep &= grid.observed | over_floor(grid, floor_grid)
         grids.append(grid)
         vertex_distance = grid.distance(vertices)[faces]  # (F, 3)
         covered = grid.covers(centroids)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from engine.finish.finishing import beneath_cameras, finish_mesh, plane_grid, typical_support
+from engine.finish.finishing import beneath_cameras, finish_mesh, over_floor, plane_grid, typical_support
 from engine.finish.free_space import PlainDepthView, view_votes
 from engine.finish.modes import FINISH_CLEAN, FINISH_OFF, FINISH_ROOM
 from engine.finish.planes import CEILING, FLOOR, WALL, StructuralPlane, camera_horizon_up, face_geometry, find_structural_planes, room_up
@@ -453,3 +453,24 @@ def test_floor_behind_a_wall_that_is_no_structural_plane_is_not_added():
     assert block.sum() > 1000 and not grid.added[block].any()
     below_table = (a > table[0] + 0.05) & (a < table[1] - 0.05) & (b > table[2] + 0.05) & (b < table[3] - 0.05)
     assert grid.added[below_table].all()
+
+
+def test_a_ceiling_is_added_only_over_the_floor():
+    """A phone's depth rarely reaches the ceiling, so its votes hardly bound its grid (on the real
+    corridor 316 m^2 of ceiling were added, over the offices too). The ceiling is kept to the floor's
+    footprint: over the corridor, not over the block of other rooms."""
+    mesh, views, _, _ = _l_corridor()
+    centroids, areas, normals = face_geometry(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64))
+    floor = StructuralPlane(FLOOR, np.array([0.0, 0, 1]), 0.0, 20.0, np.array([[1.0, 0, 0], [0, 1.0, 0]]))
+    ceiling = StructuralPlane(CEILING, np.array([0.0, 0, -1]), -2.5, 20.0, np.array([[0, 1.0, 0], [1.0, 0, 0]]))
+    outer = [StructuralPlane(WALL, np.array(n, float), o, 10.0, np.array([np.cross(n, [0, 0, 1.0]), [0, 0, 1.0]]))
+             for n, o in (((0, 1, 0), 0.0), ((1, 0, 0), 0.0), ((-1, 0, 0), -6.0), ((0, -1, 0), -6.0))]
+    planes = [floor, ceiling, *outer]
+    floor_grid = plane_grid(floor, planes, centroids, areas, normals, floor.distance(centroids), 0.08, 0.04, views, fill=True)
+    ceiling_grid = plane_grid(ceiling, planes, centroids, areas, normals, ceiling.distance(centroids), 0.08, 0.04, views,
+                              fill=True)
+    centres = ceiling_grid.centres().reshape(*ceiling_grid.keep.shape, 3)
+    block = (centres[..., 0] < 3.8) & (centres[..., 1] > 2.2)
+    corridor = (centres[..., 1] > 0.2) & (centres[..., 1] < 1.8) & (centres[..., 0] > 0.2) & (centres[..., 0] < 5.8)
+    over = over_floor(ceiling_grid, floor_grid)
+    assert not over[block].any() and over[corridor].all()
