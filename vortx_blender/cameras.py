@@ -23,6 +23,7 @@ posed capture can be read back from the scene after the .blend is saved and reop
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Optional
@@ -31,6 +32,7 @@ import bpy
 import numpy as np
 
 from ..engine.capture import Capture, Frame
+from ..engine.capture.model import SensorDepth
 from ..engine.capture.geometry import rigid_pose
 from ..engine.errors import CaptureError, PoseError
 from .point_cloud import scene_points
@@ -45,6 +47,7 @@ PROP_SIZE = "vortx_size"
 PROP_K = "vortx_K"
 PROP_POSE = "vortx_pose"
 PROP_DEPTH = "vortx_depth"
+PROP_SENSOR_DEPTH = "vortx_sensor_depth"  # JSON of engine.capture.model.SensorDepth: a phone's depth, used by Reconstruct
 
 # OpenCV camera axes (x right, y down, z forward) -> Blender camera axes (x right, y up, looks down -z).
 CV_TO_BLENDER_CAMERA = np.diag([1.0, -1.0, -1.0, 1.0])
@@ -234,6 +237,8 @@ def apply_camera_plan(scene: "bpy.types.Scene", plan: CameraPlan) -> list["bpy.t
         obj[PROP_POSE] = np.asarray(frame.pose, dtype=np.float64).ravel().tolist()
         if frame.depth_path is not None:
             obj[PROP_DEPTH] = str(frame.depth_path)
+        if frame.sensor_depth is not None:
+            obj[PROP_SENSOR_DEPTH] = json.dumps(frame.sensor_depth.to_dict())
         collection.objects.link(obj)
         objects.append(obj)
 
@@ -284,6 +289,7 @@ def posed_capture_from_scene(scene: "bpy.types.Scene") -> Optional[Capture]:
     for obj in objects:
         width, height = (int(v) for v in obj[PROP_SIZE])
         depth = obj.get(PROP_DEPTH)
+        sensor = obj.get(PROP_SENSOR_DEPTH)
         frames.append(
             Frame(
                 image_path=Path(obj[PROP_IMAGE]),
@@ -292,6 +298,7 @@ def posed_capture_from_scene(scene: "bpy.types.Scene") -> Optional[Capture]:
                 K=np.array(obj[PROP_K], dtype=np.float64).reshape(3, 3),
                 pose=np.array(obj[PROP_POSE], dtype=np.float64).reshape(4, 4),
                 depth_path=Path(depth) if depth else None,
+                sensor_depth=SensorDepth.from_dict(json.loads(sensor)) if sensor else None,
             )
         )
     settings = scene.vortx

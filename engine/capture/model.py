@@ -29,6 +29,20 @@ class SensorDepth:
     # Polycam's 0 / 127 / 255; read back as ARKit's 0 / 1 / 2 either way.
     confidence_high: int = 2
 
+    def to_dict(self) -> dict:
+        """Plain JSON-able data (paths as strings), e.g. for a Blender camera's custom property."""
+        return {"path": str(self.path), "encoding": self.encoding,
+                "confidence_path": str(self.confidence_path) if self.confidence_path is not None else None,
+                "size": list(self.size) if self.size is not None else None, "confidence_high": self.confidence_high}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "SensorDepth":
+        """The inverse of `to_dict`."""
+        return cls(Path(data["path"]), str(data["encoding"]),
+                   Path(data["confidence_path"]) if data.get("confidence_path") else None,
+                   tuple(int(v) for v in data["size"]) if data.get("size") else None,  # type: ignore[arg-type]
+                   int(data.get("confidence_high", 2)))
+
 
 @dataclass
 class Frame:

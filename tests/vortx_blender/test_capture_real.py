@@ -227,6 +227,14 @@ def test_a_zipped_phone_export_lands_with_arkit_poses_and_its_depth_as_points(bl
         camera = np.array(obj.matrix_world)
         ahead = (points - camera[:3, 3]) @ -camera[:3, 2]  # Blender cameras look down their local -z
         assert np.any(np.abs(ahead - depth_m) < 1e-3)
+    # Reconstruct rebuilds the capture from the cameras: each frame still carries its LiDAR map, so the
+    # run uses it (its depth maps from the sensor, no stereo), as `engine reconstruct` does.
+    from engine.capture.sensor_depth import read_sensor_depth
+    rebuilt = importlib.import_module(f"{blender.__name__}.vortx_blender.cameras").posed_capture_from_scene(empty_scene)
+    assert all(f.sensor_depth is not None for f in rebuilt.frames)
+    for frame, depth_m in zip(rebuilt.frames, (1.0, 1.1, 1.2, 1.3, 1.4)):
+        depth, confidence = read_sensor_depth(frame.sensor_depth)
+        assert confidence is not None and np.allclose(depth[confidence >= 2], depth_m, atol=1e-3)
 
 
 def test_the_real_corridor_export_imports_with_its_cameras_and_depth_points(blender, empty_scene) -> None:
