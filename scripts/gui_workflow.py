@@ -1,6 +1,6 @@
 """Run the whole Blender workflow in a real, windowed Blender and collect its screenshots.
 
-    sudo .venv/bin/python scripts/gui_workflow.py [--root ROOT] [--photos DIR] [--shots docs/]
+    sudo .venv/bin/python scripts/gui_workflow.py [--root ROOT] [--photos DIR | --phone-export DIR] [--shots docs/]
 
 The Blender is a Linux distribution's, in a chroot built by ../shared/tools/gui_blender_setup.sh
 (Debian 13: Blender 4.3 on Python 3.13 with numpy 2.2, Xvfb, ImageMagick; ROOT defaults to
@@ -11,7 +11,10 @@ $TRIXIE_ROOT or ~/trixie-root). As a user would:
    (vortx_blender/dependencies.py, which picks versions that fit that Python and its numpy);
 3. scripts/gui_workflow_blender.py (with devtools/gui_workflow/, copied into the root beside it)
    drives the workflow in the window under Xvfb and writes report.json and the screenshots; with
-   --shots they are copied there (the README's pictures).
+   --shots they are copied there (the README's pictures). With --phone-export (a phone app's export
+   folder or zip, e.g. the 3D Scanner App's All Data) it is that capture's variant instead
+   (devtools/gui_workflow/phone.py): Import Capture, Reconstruct with every default, the
+   docs/gui_phone_* screenshots.
 
 tests/extension/test_gui_workflow.py runs this when such a root is present. The chroot gets a clean
 environment (env -i): the host's proxy certificate settings are the root's own /etc/pip.conf.
@@ -92,15 +95,24 @@ def chroot(root: Path, command: Sequence[str], timeout: float, log: Path) -> sub
     return run
 
 
-def run_workflow(root: Path, photos: Path = DEFAULT_PHOTOS, shots: Optional[Path] = None, timeout: float = 3600) -> dict:
-    """Build, install, drive; returns report.json's content plus `log` (the chroot commands' output)."""
+def run_workflow(root: Path, photos: Path = DEFAULT_PHOTOS, shots: Optional[Path] = None, timeout: float = 3600,
+                 phone_export: Optional[Path] = None, quality: Optional[str] = None) -> dict:
+    """Build, install, drive; returns report.json's content plus `log` (the chroot commands' output).
+    With `phone_export` (a folder or zip) the phone-capture variant runs instead of the photos' workflow,
+    at the panel's default Quality unless `quality` (PREVIEW, STANDARD, ...) says otherwise."""
     check_root(root)
     work_in_root = Path(tempfile.mkdtemp(prefix="vortx-gui-", dir=root / "tmp"))
     inside = Path("/") / work_in_root.relative_to(root)  # the same folder as the chroot sees it
     log = work_in_root / "log.txt"
     try:
         archive = build(CHECKOUT, work_in_root / "dist")
-        shutil.copytree(photos, work_in_root / "photos")
+        if phone_export is None:
+            shutil.copytree(photos, work_in_root / "photos")
+            capture = ["--photos", str(inside / "photos")]
+        else:  # the export's own name: Import Capture detects the format from its contents
+            copied = work_in_root / "photos" / phone_export.name
+            (shutil.copytree if phone_export.is_dir() else shutil.copy)(phone_export, copied)
+            capture = ["--phone-export", str(inside / copied.relative_to(work_in_root))] + (["--quality", quality] if quality else [])
         driver = copy_driver(work_in_root)
         (work_in_root / "install_packages.py").write_text(INSTALL_PACKAGES)
         zip_inside = inside / "dist" / archive.name
@@ -113,7 +125,7 @@ def run_workflow(root: Path, photos: Path = DEFAULT_PHOTOS, shots: Optional[Path
         gui = chroot(root, [
             "xvfb-run", "-a", "-s", f"-screen 0 {SCREEN}",
             "blender", "--window-geometry", "0", "0", *SCREEN.split("x")[:2], "--no-window-focus",
-            "--python", str(inside / driver), "--", "--photos", str(inside / "photos"), "--out", str(inside / "out"),
+            "--python", str(inside / driver), "--", *capture, "--out", str(inside / "out"),
         ], timeout, log)
         report_file = work_in_root / "out" / "report.json"
         if not report_file.is_file():
@@ -135,10 +147,15 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=default_root(), help="the chroot (default: $TRIXIE_ROOT or ~/trixie-root)")
     parser.add_argument("--photos", type=Path, default=DEFAULT_PHOTOS, help="a folder of photos (default: the demo room)")
+    parser.add_argument("--phone-export", type=Path, help="a phone app's export folder or zip (e.g. the 3D Scanner App's "
+                        "All Data): Import Capture and Reconstruct with every default on it instead")
+    parser.add_argument("--quality", type=str.upper, help="with --phone-export: the Quality chosen before Reconstruct "
+                        "(PREVIEW, STANDARD, ...; default: the panel's default)")
     parser.add_argument("--shots", type=Path, help="copy the screenshots here (e.g. docs/)")
     args = parser.parse_args(argv)
     try:
-        report = run_workflow(args.root, args.photos.resolve(), args.shots)
+        report = run_workflow(args.root, args.photos.resolve(), args.shots,
+                              phone_export=args.phone_export.resolve() if args.phone_export else None, quality=args.quality)
     except GuiUnavailable as error:
         print(f"error: {error}", file=sys.stderr)
         return 1

@@ -18,5 +18,7 @@ modal operators need the event loop running. The outcome is written to <out>/rep
 checks, timings, screenshots); Blender then quits. A failed check ends the run there.
 
 report.py keeps the report, x11.py builds the X commands (screenshots, clicks), panels.py the panel
-classes that show sub-panels open; window.py and steps.py run inside Blender.
+classes that show sub-panels open; window.py and steps.py run inside Blender. phone.py is the
+phone-capture variant (scripts/gui_workflow.py --phone-export): Import Capture on a phone app's export,
+Reconstruct, the README's docs/gui_phone_* screenshots.
 """

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Optional
 
 import bpy
 
@@ -35,24 +35,7 @@ FACE_BUDGET = 40000
 def workflow(photo_folder: Path, report: WorkflowReport) -> Iterator[float]:
     """The steps, as a generator of seconds to wait before the next tick (bpy.app.timers)."""
     panels = PanelLayout()
-    yield 3.0  # the window's first draws
-    report.begin("open the VoRTX sidebar")
-    # A new file's cube, light and camera would sit inside the room: a user deletes them first.
-    for obj in list(bpy.context.scene.objects):
-        bpy.data.objects.remove(obj)
-    _, area, _ = view3d()
-    area.spaces.active.show_region_ui = True
-    redraw()
-    yield 1.0
-    yield from show_vortx_tab()
-    yield from settle()
-    report.check(sidebar().active_panel_category == "VoRTX", f"the sidebar shows the VoRTX tab ({sidebar().active_panel_category})")
-    dependencies = addon("vortx_blender.dependencies")
-    missing = [s.describe() for s in dependencies.status(refresh=True) if s.needs_install]
-    report.check(not missing, f"the engine's packages are installed (missing: {missing})")
-    report.data["sidebar"] = measure_sidebar(MEASURED_TEXTS)
-    shot(report, "gui_01_start", "the VoRTX tab before a capture is imported", True)
-    report.end()
+    yield from open_sidebar(report, "gui_01_start")
 
     scene = bpy.context.scene
     settings = scene.vortx
@@ -221,4 +204,28 @@ def workflow(photo_folder: Path, report: WorkflowReport) -> Iterator[float]:
     x_command(scroll_down_command(x, y), timeout=60)  # the mouse wheel, as a user scrolls
     yield from settle()
     shot(report, "gui_08_sidebar_end", "the Model, Advanced and Stereo panels opened (the sidebar scrolled down)", True)
+    report.end()
+
+
+def open_sidebar(report: WorkflowReport, shot_name: Optional[str] = None) -> Iterator[float]:
+    """The first step: the new file's objects deleted, the sidebar's VoRTX tab opened (clicked), the
+    engine's packages checked; a screenshot of the tab as `shot_name` when given."""
+    yield 3.0  # the window's first draws
+    report.begin("open the VoRTX sidebar")
+    # A new file's cube, light and camera would sit inside the room: a user deletes them first.
+    for obj in list(bpy.context.scene.objects):
+        bpy.data.objects.remove(obj)
+    _, area, _ = view3d()
+    area.spaces.active.show_region_ui = True
+    redraw()
+    yield 1.0
+    yield from show_vortx_tab()
+    yield from settle()
+    report.check(sidebar().active_panel_category == "VoRTX", f"the sidebar shows the VoRTX tab ({sidebar().active_panel_category})")
+    dependencies = addon("vortx_blender.dependencies")
+    missing = [s.describe() for s in dependencies.status(refresh=True) if s.needs_install]
+    report.check(not missing, f"the engine's packages are installed (missing: {missing})")
+    report.data["sidebar"] = measure_sidebar(MEASURED_TEXTS)
+    if shot_name:
+        shot(report, shot_name, "the VoRTX tab before a capture is imported", True)
     report.end()

@@ -7,7 +7,7 @@ import importlib
 import subprocess
 import time
 from types import ModuleType
-from typing import Any, Iterator, Sequence
+from typing import Any, Iterator, Optional, Sequence
 
 import blf
 import bpy
@@ -60,11 +60,14 @@ def settle() -> Iterator[float]:
         yield 0.3
 
 
-def shot(report: WorkflowReport, name: str, what: str, crop_sidebar: bool) -> None:  # after `yield from settle()`
-    """Screenshot of the X display: the VoRTX sidebar (PNG) or the whole window (JPEG)."""
+def shot(report: WorkflowReport, name: str, what: str, crop_sidebar: bool, png: Optional[bool] = None,
+         width: int = 1200, quality: int = 82) -> None:  # after `yield from settle()`
+    """Screenshot of the X display: the VoRTX sidebar (PNG) or the whole window (JPEG, or PNG when `png`),
+    the whole window scaled to `width` px."""
     window, _, _ = view3d()
-    path = report.out / (f"{name}.png" if crop_sidebar else f"{name}.jpg")
-    x_command(screenshot_command(path, window.width, window.height, sidebar() if crop_sidebar else None), timeout=60)
+    path = report.out / (f"{name}.png" if (crop_sidebar if png is None else png) else f"{name}.jpg")
+    x_command(screenshot_command(path, window.width, window.height, sidebar() if crop_sidebar else None, width, quality),
+              timeout=60)
     report.add_shot(path, what)
 
 

@@ -21,14 +21,15 @@ def top_in_x(window_height: int, region: Region) -> int:
     return window_height - (region.y + region.height)
 
 
-def screenshot_command(path: Path, window_width: int, window_height: int, sidebar: Optional[Region] = None) -> list[str]:
-    """`import` of the X display: cropped to `sidebar` (a PNG), or the whole window scaled to 1200 px
-    wide (a JPEG)."""
+def screenshot_command(path: Path, window_width: int, window_height: int, sidebar: Optional[Region] = None,
+                       width: int = 1200, quality: int = 82) -> list[str]:
+    """`import` of the X display: cropped to `sidebar` (a PNG), or the whole window scaled to `width` px
+    wide (the format `path`'s suffix says, a JPEG at `quality`)."""
     command = ["import", "-window", "root"]
     if sidebar is not None:
         command += ["-crop", f"{sidebar.width}x{sidebar.height}+{sidebar.x}+{top_in_x(window_height, sidebar)}", "+repage"]
     else:
-        command += ["-crop", f"{window_width}x{window_height}+0+0", "+repage", "-resize", "1200x", "-quality", "82"]
+        command += ["-crop", f"{window_width}x{window_height}+0+0", "+repage", "-resize", f"{width}x", "-quality", str(quality)]
     return command + [str(path)]
 
 

@@ -71,6 +71,28 @@ def test_whole_workflow_in_a_blender_window(gui_root: Path) -> None:
     assert measured["text_widths"] == {text: sidebar.text_width(text) for text in measured["text_widths"]}
 
 
+PHONE_STEPS = ["open the VoRTX sidebar", "Import Capture (the phone app's export)",
+               "Reconstruct with every default (stereo, Finish Room, the sensor depth)"]
+
+
+@pytest.mark.slow
+def test_phone_export_in_a_blender_window(gui_root: Path) -> None:
+    """scripts/gui_workflow.py --phone-export (the README's docs/gui_phone_* pictures): the export's own
+    poses, scale and depth imported, then Reconstruct with every default."""
+    export = os.environ.get("VORTX_GUI_PHONE_EXPORT")
+    if not export:
+        pytest.skip("set VORTX_GUI_PHONE_EXPORT to a phone app's export (e.g. the 3D Scanner App's All Data folder)")
+    report = gui_workflow.run_workflow(gui_root, timeout=3000, phone_export=Path(export))
+    failed = [f"{s['step']}: {c['check']}" for s in report["steps"] for c in s["checks"] if not c["ok"]]
+    assert report["ok"], f"{report.get('error')}\nfailed checks: {failed}\n{report['log'][-4000:]}"
+    assert [s["step"] for s in report["steps"]] == PHONE_STEPS
+    assert report["panel"]["poses"].startswith("Poses: ") and report["faces"] > 1000
+    out = Path(report["out"])
+    for shot in report["shots"]:
+        pixels = np.asarray(Image.open(out / shot["file"]).convert("L"), dtype=np.float32)
+        assert pixels.std() > 10 and pixels.mean() > 20, (shot, pixels.mean(), pixels.std())
+
+
 def _sidebar_module():
     import importlib.util
 
