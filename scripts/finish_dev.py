@@ -146,7 +146,7 @@ def score_heldout(cached: Path, modes: list[str], save: Path | None) -> None:
               f"median {100 * mean['median_error_m']:.1f} cm  faces {len(result.mesh.faces)}")
         if save is not None:
             save.mkdir(parents=True, exist_ok=True)
-            write_ply(save / f"{mode}.ply", result.mesh.vertices, result.mesh.faces)
+            write_ply(save / f"{mode}.ply", result.mesh.vertices, result.mesh.faces, attributes=result.mesh.attributes or None)
 
 
 def score(cached: Path, truth: Path, modes: list[str], save: Path | None, truth_poses: bool) -> None:

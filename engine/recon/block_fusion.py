@@ -102,7 +102,8 @@ def fuse_blocks(
     with_depth = [m for m in maps if m.depth.size and m.depth.max() > 0]
     boxes = [frustum_box(m, reach) for m in with_depth]
     work = []
-    for block in fusion_blocks(dims, block_voxels):
+    blocks = fusion_blocks(dims, block_voxels)
+    for block in blocks:
         lo, hi = block.box(origin, voxel_size)
         seen = [m for m, (a, b) in zip(with_depth, boxes) if np.all(a <= hi) and np.all(b >= lo)]
         if seen:
@@ -127,7 +128,9 @@ def fuse_blocks(
             keep, support = weight >= MIN_OBSERVATIONS, None
         done += len(seen)
         local = np.argwhere(keep)
-        piece = extract_mesh(local + block.start, tsdf[keep], origin, voxel_size, corner=block.start)
+        # One block is the whole grid: meshed as the learned method meshes it, so the two agree bit for bit.
+        corner = block.start if len(blocks) > 1 else None
+        piece = extract_mesh(local + block.start, tsdf[keep], origin, voxel_size, corner=corner)
         del tsdf, keep
         if len(piece.faces) == 0:
             continue
@@ -139,6 +142,9 @@ def fuse_blocks(
     block_dims = tuple(int(d) for d in np.max([b.dims for b, _ in work], axis=0)) if work else (0, 0, 0)
     if not pieces:
         return BlockMesh(empty_mesh(), np.zeros(0, np.float32) if evidence_fusion else None, len(work), block_dims)  # type: ignore[arg-type]
+    if len(pieces) == 1:  # nothing to weld
+        vertex_support = supports[0] if supports else None
+        return BlockMesh(pieces[0], vertex_support, len(work), block_dims)  # type: ignore[arg-type]
     offsets = np.cumsum([0] + [len(p.vertices) for p in pieces[:-1]])
     vertices = np.concatenate([p.vertices for p in pieces]).astype(np.float64)
     faces = np.concatenate([p.faces.astype(np.int64) + o for p, o in zip(pieces, offsets)])

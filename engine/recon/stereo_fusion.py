@@ -105,14 +105,13 @@ def depth_points_box(maps: list[DepthMap], margin: float, stride: int = 4) -> Op
 def fusion_grid(plan: ReconPlan, maps: list[DepthMap], voxel_size: float) -> tuple[np.ndarray, tuple[int, int, int]]:
     """Origin (3,) and dims of the grid on the plan's voxel lattice that covers the surfaces stereo found:
     the scene bounds cut to the depth maps' box (the frusta at the bounds' depth reach metres past the
-    walls, and fusion's cost is the grid's volume). Along an axis the bounds clipped for want of
-    evidence (scene_bounds.py), the depth maps are that evidence: their box is taken whole."""
+    walls, and fusion's cost is the grid's volume). The scene bounds keep whatever the sparse points
+    show (scene_bounds.py); the same grid is the learned method's (`classical_fusion`), whose network
+    runs only inside the plan's tiles, so both methods mesh the same space."""
     lo, hi = plan.bounds.minimum.astype(np.float64), plan.bounds.maximum.astype(np.float64)
     box = depth_points_box(maps, margin=4 * CLASSICAL_TRUNCATION_VOXELS * voxel_size)
     if box is not None:
-        clipped = np.array(plan.bounds.clipped)
-        lo = np.where(clipped, box[0], np.maximum(lo, box[0]))
-        hi = np.where(clipped, box[1], np.minimum(hi, box[1]))
+        lo, hi = np.maximum(lo, box[0]), np.minimum(hi, box[1])
         hi = np.maximum(hi, lo + 2 * voxel_size)
     lattice = plan.grid.origin.astype(np.float64)
     origin = lattice + np.floor((lo - lattice) / voxel_size) * voxel_size

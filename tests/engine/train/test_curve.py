@@ -101,8 +101,11 @@ def test_learning_curve_starts_at_classical_fusion_and_survives_a_resume(tmp_pat
     start, classical = lines[0], lines[1]
     # Untrained, the evidence network's mesh is the classical method's: the same scores.
     assert classical["fscore"] > 0.3, "stereo should find the box's walls"
-    for key in ("fscore", "prec", "recall", "normal_agreement", "floater_share", "pieces"):
+    for key in ("fscore", "prec", "recall", "floater_share", "pieces"):
         assert start[key] == pytest.approx(classical[key], abs=1e-6), key  # float32 round trip through tanh
+    # The same surface, its vertices a float32 rounding apart (the field goes through the network's logits
+    # and is meshed on the plan's lattice origin): a few faces near 30 deg from the truth's normal flip.
+    assert start["normal_agreement"] == pytest.approx(classical["normal_agreement"], abs=5e-3)
     assert (out / "curve_weights" / "step_000002.safetensors").is_file()  # each point can be scored again
     assert set(start["rooms"]) == {"box"}
 
