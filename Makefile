@@ -32,7 +32,7 @@ $(STAMP): requirements.txt constraints.txt
 	touch $(STAMP)
 
 test: venv tools
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider -n 2 --dist loadfile
 
 demo: venv
 	$(PY) scripts/demo.py

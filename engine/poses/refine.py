@@ -207,6 +207,14 @@ class RefineResult:
     def translation_max(self) -> float:
         return self._stat("translation", np.max)
 
+    def _focal_scales(self) -> str:
+        """Each intrinsics group's focal scale, or their range where there are many (a phone's ARKit
+        export has its own intrinsics per photo)."""
+        scales = np.asarray(self.focal_scale, np.float64)
+        if len(scales) <= 4:
+            return ", ".join(f"{s:.4f}" for s in scales)
+        return f"{scales.min():.4f}..{scales.max():.4f} over {len(scales)} intrinsics groups"
+
     @property
     def report(self) -> str:
         total = len(self.changes)
@@ -214,8 +222,7 @@ class RefineResult:
             f"Pose refinement: triangulation with the given poses + bundle adjustment ({self.adjustment}) of "
             f"{self.adjusted_frames} frames, photos at {self.scaled_size[0]}x{self.scaled_size[1]}",
             f"  reprojection error {self.error_given_px:.2f} px with the given poses, {self.mean_reprojection_error:.2f} px "
-            f"refined ({len(self.points)} 3D points); focal scale "
-            + ", ".join(f"{s:.4f}" for s in self.focal_scale),
+            f"refined ({len(self.points)} 3D points); focal scale {self._focal_scales()}",
         ]
         if self.kept_given:
             lines.append(f"  kept the given poses: {self.kept_given}")
