@@ -28,7 +28,7 @@ class PoseComparison:
     """Estimated cameras against the true ones of the same photos."""
 
     stems: list[str]  # the photos with both an estimated and a true pose
-    errors: dict[str, float]  # engine.poses.pose_errors: rotation_deg_mean/max, position_mean/max (metres)
+    errors: dict[str, float]  # engine.poses.pose_errors: rotation_deg_mean/max, position_mean/max (metres), up_deg
     to_truth: Similarity  # estimated world -> truth world, from the camera centres
 
     def summary(self, total: int) -> str:
@@ -36,7 +36,7 @@ class PoseComparison:
         return (f"poses vs truth ({len(self.stems)} of {total} photos registered; after the Sim(3) fit of the camera "
                 f"centres, scale {self.to_truth.scale:.3f}): rotation error mean {self.errors['rotation_deg_mean']:.2f} deg "
                 f"(max {self.errors['rotation_deg_max']:.2f}), position error mean {100 * self.errors['position_mean']:.1f} cm "
-                f"(max {100 * self.errors['position_max']:.1f} cm)")
+                f"(max {100 * self.errors['position_max']:.1f} cm), up off by {self.errors['up_deg']:.2f} deg")
 
 
 def compare_poses(estimated: Mapping[str, np.ndarray], truths: Mapping[str, np.ndarray]) -> PoseComparison:

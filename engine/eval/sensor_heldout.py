@@ -15,6 +15,13 @@ then averaged:
 Both variants run by default (sensor depth on, then stereo alone), so each number stands beside its
 baseline measured the same way; the reconstruction's own flags (`--finish`, `--max-room-size`, ...)
 apply to both.
+
+`--photos-only` measures what a user with the photos alone gets: the kept photos lose their poses,
+intrinsics and depth, structure from motion poses them and finds up and scale as for any photo folder
+(stereo alone, then), and the mesh is moved onto the phone's world by the similarity that fits the
+SfM camera centres to the phone's before it is compared. The phone's poses are the truth for what SfM
+found: the scale (phone metres per estimated metre, 1 when the floor-based scale is right) and how far
+"up" is off (`engine.poses.pose_errors`).
 """
 
 from __future__ import annotations
@@ -40,6 +47,7 @@ from ..poses.prepare import KEEP_POSES_HELP, SFM_IF_UNPOSED, prepare_capture
 from ..recon.driver import reconstruct
 from ..recon.presets import add_quality_argument, settings_from_quality_arguments
 from ..recon.settings import ReconSettings, add_setting_arguments
+from .against_truth import compare_poses
 
 MAX_TRUTH_DEPTH_M = 4.5  # a phone LiDAR's reliable range; beyond it the sensor is no truth
 AGREEMENT_M = 0.05
@@ -77,29 +85,49 @@ def compare_to_sensor(mesh: Mesh, frame: Frame, pose: np.ndarray) -> Optional[di
     }
 
 
+def photos_alone(capture: Capture) -> Capture:
+    """`capture` as a user with its photos alone has it: no poses, intrinsics, depth or sparse points."""
+    frames = [replace(f, K=None, pose=None, sensor_depth=None, depth_path=None) for f in capture.frames]
+    return replace(capture, format="images", frames=frames, metric=False, points=None, point_colors=None,
+                   pose_origin="", warnings=[], notes=[])
+
+
 def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, keep_poses: bool = False,
-                     progress=None) -> dict:
+                     progress=None, photos_only: bool = False) -> dict:
     """Reconstruct `kept` as `engine reconstruct` does (pose check, refinement when off) with `settings`,
-    and compare the mesh with each held-out frame's LiDAR."""
+    and compare the mesh with each held-out frame's LiDAR. `photos_only`: from `photos_alone(kept)`."""
     started = time.perf_counter()
-    prepared = prepare_capture(kept, sfm=SFM_IF_UNPOSED, check_poses=True, refine_when_off=not keep_poses,
-                               progress=progress)
+    prepared = prepare_capture(photos_alone(kept) if photos_only else kept, sfm=SFM_IF_UNPOSED, check_poses=True,
+                               refine_when_off=not keep_poses, progress=progress)
     result = reconstruct(prepared.capture, settings, progress=progress)
     seconds = time.perf_counter() - started
-    # Held-out poses move into the reconstruction's world as the kept ones did (identity for a metric capture).
-    similarity = prepared.similarity
+    mesh, poses_found = result.mesh, None
+    if photos_only:
+        # The mesh moves onto the phone's world; the held-out frames keep the phone's poses.
+        comparison = compare_poses({f.image_path.stem: f.pose for f in prepared.capture.frames if f.pose is not None},
+                                   {f.image_path.stem: f.pose for f in kept.frames if f.pose is not None})
+        mesh = Mesh(comparison.to_truth.apply_points(mesh.vertices).astype(mesh.vertices.dtype), mesh.faces)
+        poses_found = {"registered": len(comparison.stems), "photos": len(kept.frames),
+                       "models": list(prepared.sfm.model_sizes) if prepared.sfm is not None else [],
+                       "scale_source": prepared.scale_source, "description": prepared.description,
+                       **{key: float(value) for key, value in comparison.errors.items()}}
+        similarity = None
+    else:
+        # Held-out poses move into the reconstruction's world as the kept ones did (identity for a metric capture).
+        similarity = prepared.similarity
     rows = []
     for frame in held:
         pose = similarity.apply_pose(frame.pose) if similarity is not None else frame.pose
-        row = compare_to_sensor(result.mesh, frame, pose)
+        row = compare_to_sensor(mesh, frame, pose)
         if row is not None:
             rows.append({"frame": frame.name, **row})
     if not rows:
         raise VortxError("no held-out frame has confident sensor depth to compare with")
     mean = {key: float(np.nanmean([r[key] for r in rows])) for key in ("within_5cm", "rendered", "median_error_m")}
-    return {"sensor_depth": settings.sensor_depth, "settings": settings.to_dict(), "keep_poses": keep_poses,
+    return {"sensor_depth": settings.sensor_depth and not photos_only, "photos_only": photos_only,
+            "poses_found": poses_found, "settings": settings.to_dict(), "keep_poses": keep_poses,
             "poses_refined": prepared.refinement is not None, "frames_in": len(kept.frames), "held_out": len(rows),
-            "faces": int(len(result.mesh.faces)), "seconds": round(seconds, 1), "mean": mean, "frames": rows,
+            "faces": int(len(mesh.faces)), "seconds": round(seconds, 1), "mean": mean, "frames": rows,
             "stereo": result.stats.get("stereo", {}), "warnings": list(result.warnings)}
 
 
@@ -107,9 +135,16 @@ def format_rows(results: list[dict]) -> str:
     lines = [f"{'variant':<22}{'within 5 cm':>12}{'rendered':>10}{'median err':>12}{'faces':>9}{'time':>8}"]
     for r in results:
         m = r["mean"]
-        name = "sensor depth" if r["sensor_depth"] else "stereo alone"
+        name = "photos alone (SfM)" if r.get("photos_only") else "sensor depth" if r["sensor_depth"] else "stereo alone"
         lines.append(f"{name:<22}{m['within_5cm']:>12.3f}{m['rendered']:>10.3f}{100 * m['median_error_m']:>10.1f}cm"
                      f"{r['faces']:>9}{r['seconds']:>7.0f}s")
+    for r in results:
+        found = r.get("poses_found")
+        if found:
+            lines.append(f"photos alone: SfM posed {found['registered']} of {found['photos']} photos (models "
+                         f"{', '.join(map(str, found['models']))}); scale {found['scale']:.3f} phone metres per metre "
+                         f"found ({found['scale_source']}), up off by {found['up_deg']:.2f} deg, rotation error mean "
+                         f"{found['rotation_deg_mean']:.2f} deg, position error mean {100 * found['position_mean']:.1f} cm")
     return "\n".join(lines)
 
 
@@ -121,6 +156,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", type=Path, help="write the per-frame and mean numbers here")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--keep-poses", action="store_true", help=KEEP_POSES_HELP)
+    parser.add_argument("--photos-only", action="store_true",
+                        help="reconstruct from the kept photos alone (their poses, intrinsics and depth dropped, SfM "
+                             "poses them) and report the scale and up it found against the phone's")
     add_quality_argument(parser)
     add_setting_arguments(parser)  # the reconstruction's own flags (--finish, --max-room-size, ...)
 
@@ -131,11 +169,12 @@ def run(args: argparse.Namespace) -> int:
         raise VortxError(f"{args.capture} has no sensor depth maps to hold out: choose a phone export with LiDAR depth")
     kept, held = split_capture(capture, args.every)
     held = [f for f in held if f.sensor_depth is not None and f.pose is not None]
-    variants = {"both": (True, False), "sensor": (True,), "stereo": (False,)}[args.variant]
+    variants = (False,) if args.photos_only else {"both": (True, False), "sensor": (True,), "stereo": (False,)}[args.variant]
     progress = TqdmProgress(disable=args.quiet)
     try:
         settings = settings_from_quality_arguments(args)
-        results = [evaluate_variant(kept, held, replace(settings, sensor_depth=v), args.keep_poses, progress) for v in variants]
+        results = [evaluate_variant(kept, held, replace(settings, sensor_depth=v), args.keep_poses, progress, args.photos_only)
+                   for v in variants]
     finally:
         progress.close()
     print(format_rows(results))

@@ -134,7 +134,9 @@ def pose_errors(estimated_c2w: Sequence[np.ndarray], true_c2w: Sequence[np.ndarr
     estimated_c2w, true_c2w: equally long sequences of (4, 4) camera-to-world, OpenCV axes, same order.
     Returns rotation_deg_mean / rotation_deg_max (angle of R_true^T R_aligned per camera),
     position_mean / position_max (centre distance in the units of the truth), the fitted `scale`
-    (truth units per estimated unit) and `count`.
+    (truth units per estimated unit), `up_deg` (median over the cameras of the angle between "up" as
+    each camera sees it in the estimated world and in the true one, +Z of both: how far the estimated
+    gravity is off, whatever the fit) and `count`.
     """
     if len(estimated_c2w) != len(true_c2w):
         raise ValueError(f"{len(estimated_c2w)} estimated poses but {len(true_c2w)} true poses")
@@ -150,5 +152,6 @@ def pose_errors(estimated_c2w: Sequence[np.ndarray], true_c2w: Sequence[np.ndarr
         "position_mean": float(pos_err.mean()),
         "position_max": float(pos_err.max()),
         "scale": sim.scale,
+        "up_deg": float(np.median(np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", est[:, 2, :3], gt[:, 2, :3]), -1.0, 1.0))))),
         "count": float(len(est)),
     }

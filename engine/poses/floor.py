@@ -12,8 +12,10 @@ below the floor, or a table top when the floor is not seen. Here the floor is a 
 - of the horizontal planes found (up to three, each fitted on the points the previous ones left),
   the floor is the lowest one that is well supported and is not an "orbited support": a small
   plane (its dense footprint under 30 % of the area the cameras enclose) inside the ring of
-  cameras is the table under an object the cameras circle around (the fox capture), not the
-  floor. A plane with many points well below it is not the floor either. These are heuristics:
+  cameras that the cameras stand beside, not over, is the table under an object they circle around
+  (the fox capture), not the floor. A walk round a block (a U-shaped corridor) also rings a small
+  footprint, but there the cameras stand over the floor they see: that keeps it a floor. A plane
+  with many points well below it is not the floor either. These are heuristics:
   when they reject every plane, the caller says that no floor was found;
 - the plane is refitted by least squares on its inliers; its normal then refines gravity when
   the support is large (`GRAVITY_MIN_INLIERS`), since a floor seen across the room measures "up"
@@ -37,6 +39,8 @@ GRAVITY_MIN_INLIERS = 150  # enough floor points to trust the plane's normal ove
 BAND_FRACTION = 0.015  # inlier band half-width, as a fraction of the cameras' height above the lowest points
 MAX_SHARE_BELOW = 0.10  # a plane with more than this share of the candidates clearly below it is not the floor
 MAX_ORBITED_AREA = 0.3  # a plane inside the camera ring smaller than this share of the ring's area is a table
+MIN_CAMERAS_OVER = 0.5  # ... unless at least this share of the cameras stand over it (a corridor's floor)
+OVER_CELLS = 2  # a camera stands over a plane when a dense cell of it lies within this many cells
 FOOTPRINT_CELLS = 5  # footprint grid cell = camera height above the lowest points / this
 RANSAC_ITERATIONS = 400
 MAX_PLANES = 3
@@ -217,8 +221,16 @@ def _described(
     if len(dense) and len(ring) >= 3:
         ring_area = _polygon_area(ring)
         centre = (dense.mean(axis=0) + 0.5) * cell
-        orbited = ring_area > 0 and area < MAX_ORBITED_AREA * ring_area and _inside(ring, centre)
+        orbited = (ring_area > 0 and area < MAX_ORBITED_AREA * ring_area and _inside(ring, centre)
+                   and _share_over(cams[:, :2], dense, cell) < MIN_CAMERAS_OVER)
     return FloorPlane(normal, offset, inliers, len(below), band, tilt, area, orbited)
+
+
+def _share_over(camera_xy: np.ndarray, dense: np.ndarray, cell: float) -> float:
+    """Share of the cameras (M, 2) within OVER_CELLS cells of a dense footprint cell (K, 2 integer keys)."""
+    camera_keys = np.floor(camera_xy / cell).astype(np.int64)
+    gaps = np.abs(camera_keys[:, None, :] - dense[None, :, :]).max(axis=2)  # (M, K) Chebyshev distance in cells
+    return float((gaps.min(axis=1) <= OVER_CELLS).mean())
 
 
 def _polygon_area(polygon: np.ndarray) -> float:

@@ -2,11 +2,12 @@
 
 SfM returns a world with an arbitrary orientation, origin and scale. VoRTX expects metres with
 gravity along -Z, so we
-1. rotate the world so the cameras' mean "up" becomes +Z. People hold phones roughly level, so
-   the mean of the cameras' up vectors (OpenCV camera up is -y, i.e. -R[:, 1] in the world) is a
-   good first gravity estimate; tilts up and down cancel out in the mean;
+1. rotate the world so that up becomes +Z: up from the photos' vertical lines
+   (`vertical_lines.py`) when enough are seen, else the mean of the cameras' up vectors (OpenCV
+   camera up is -y, i.e. -R[:, 1] in the world), which leans however the phone was held;
 2. find the floor as a plane in the sparse points below the cameras (RANSAC along gravity,
-   `floor.py`); when the plane is well supported its normal refines gravity. The median camera
+   `floor.py`); when the plane is well supported its normal refines gravity if the lines gave
+   none, and is checked against the lines' up if they did (a disagreement is a warning). The median camera
    height above it, set equal to `camera_height` (`camera_height.py`: a hand-held phone), gives the
    scale, unless a known distance between two cameras or two 3D points is given;
    when no floor plane is found, the lowest points (a low percentile of the heights) stand in
@@ -39,7 +40,11 @@ from ..geometry.cameras import mean_up_direction, rotation_taking  # noqa: F401 
 from .align import Similarity
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .floor import GRAVITY_MIN_INLIERS, MIN_FLOOR_POINTS, FloorPlane, find_floor_plane
+from .vertical_lines import up_from_vertical_lines
 
+# Vertical lines measure up to a tenth of a degree (0.06-0.08 deg on the corridor's ARKit poses and the
+# demo room's true ones); a well-supported floor plane more than this far from them is reported.
+MAX_FLOOR_LINES_DISAGREEMENT_DEG = 2.0
 FLOOR_PERCENTILE = 2.0  # fallback floor: this percentile of the heights below the cameras
 
 Endpoint = Union[str, Sequence[float], np.ndarray]  # a frame's file name, or a 3D point (3,)
@@ -176,27 +181,39 @@ def align_gravity_and_scale(
         return Alignment(capture, Similarity.identity(), points, "metric capture", "metric capture: poses kept as they are")
 
     poses = np.stack([f.pose for f in posed])
-    rotation = rotation_taking(mean_up_direction(poses), np.array([0.0, 0.0, 1.0]))
+    mean_up = mean_up_direction(poses)
     if capture.metric:
+        rotation = rotation_taking(mean_up, np.array([0.0, 0.0, 1.0]))
         return _finish(capture, Similarity(rotation, np.zeros(3), 1.0), points, "metric capture",
                        "metric capture: rotated to Z up, scale and position kept", [], None, "", None)
 
+    # Hand-held cameras' mean up leans by however the phone was held (10 deg and more looking down);
+    # the photos' vertical lines measure gravity itself.
+    lines = up_from_vertical_lines(posed, mean_up)
+    rotation = rotation_taking(lines.up if lines is not None else mean_up, np.array([0.0, 0.0, 1.0]))
     warnings: list[str] = []
     centres = poses[:, :3, 3] @ rotation.T
     moved_points = None if points is None else np.asarray(points, dtype=np.float64).reshape(-1, 3) @ rotation.T
     search = find_floor_plane(moved_points, centres)
-    gravity_note = ""
+    gravity_note = f"; {lines.describe()}" if lines is not None else ""
     if search.plane is not None and search.plane.inliers >= GRAVITY_MIN_INLIERS:
-        # A floor seen by many points measures "up" better than hand-held cameras' mean up, which
-        # cameras looking down tilt by 10 degrees and more. Search again in the corrected frame:
-        # "below the cameras" and the inlier band both depend on where up is.
         tilt = search.plane.tilt_deg
-        refine = rotation_taking(search.plane.normal, np.array([0.0, 0.0, 1.0]))
-        rotation = refine @ rotation
-        centres, moved_points = centres @ refine.T, moved_points @ refine.T
-        search = find_floor_plane(moved_points, centres)
-        if tilt >= 0.05:
-            gravity_note = f"; gravity refined by the floor's normal ({tilt:.1f} deg from the cameras' mean up)"
+        if lines is not None:
+            if tilt > MAX_FLOOR_LINES_DISAGREEMENT_DEG:
+                warnings.append(f"the floor plane's normal is {tilt:.1f} deg from the up the vertical lines give: a "
+                                "sloping floor, or a plane that is not the floor; up kept from the lines, check the "
+                                "floor in the result")
+            else:
+                gravity_note += f", the floor's normal agrees within {tilt:.1f} deg"
+        else:
+            # A floor seen by many points measures "up" better than the cameras' mean up. Search again
+            # in the corrected frame: "below the cameras" and the inlier band both depend on where up is.
+            refine = rotation_taking(search.plane.normal, np.array([0.0, 0.0, 1.0]))
+            rotation = refine @ rotation
+            centres, moved_points = centres @ refine.T, moved_points @ refine.T
+            search = find_floor_plane(moved_points, centres)
+            if tilt >= 0.05:
+                gravity_note = f"; gravity refined by the floor's normal ({tilt:.1f} deg from the cameras' mean up)"
     plane = search.plane
     camera_z = float(np.median(centres[:, 2]))
 

@@ -7,7 +7,10 @@ Choices (measured in platform-notes section 1 and on the fox photos):
   full size. K is scaled back to the full-size photos afterwards.
 - Matching: exhaustive for small unordered photo sets (robust, O(n^2) pairs); sequential with
   `sequential_overlap` neighbours for video frames and sets larger than `sequential_above`
-  (O(n) pairs). Never loop detection: it needs a vocabulary tree download and aborts offline.
+  (O(n) pairs), plus loop detection: photos of the same place far apart in the walk are matched
+  too, found with a vocabulary tree trained on the capture's own features (COLMAP would download
+  one, and offline it aborts; `sfm_worker.own_vocabulary_tree`). A pair far apart in the walk counts
+  only with `sfm_worker.FAR_PAIR_MIN_INLIERS` verified matches: look-alike corridors match falsely.
 - Intrinsics: when every frame has the same calibrated K (COLMAP, transforms.json, ScanNet
   captures), PINHOLE held fixed in bundle adjustment. Otherwise SIMPLE_RADIAL is estimated
   (COLMAP's default: modelling the lens's mild barrel distortion keeps bundle adjustment from
@@ -53,6 +56,7 @@ class SfmOptions:
     max_side: int = 1024  # downscale photos so their larger side is at most this for SfM; 0 = full size
     sequential_overlap: int = 10  # neighbours each frame is matched with by the sequential matcher
     sequential_above: int = 60  # "auto" matches sequentially when there are more frames than this
+    loop_detection: bool = True  # sequential matching also matches far-apart photos of one place
     intrinsics: str = "auto"  # "fixed" | "prior" (refine the given K) | "estimate" (ignore it) | "auto"
     camera_model: str = "SIMPLE_RADIAL"  # model estimated when intrinsics are not fixed
     undistort: bool = True  # undistort the photos (into the cache) when the lens distortion is significant
@@ -177,6 +181,7 @@ def estimate_poses(
         "max_side": int(options.max_side),
         "matcher": matcher,
         "overlap": int(options.sequential_overlap),
+        "loop_detection": bool(options.loop_detection),
         "camera_model": options.camera_model,
         "intrinsics": intrinsics,
         "K": None if given_K is None else given_K.tolist(),

@@ -123,6 +123,35 @@ def test_a_table_under_an_object_is_not_taken_for_the_floor():
     assert any("no floor plane found" in w and "known distance" in w for w in result.warnings)
 
 
+def test_the_floor_of_a_corridor_walked_round_a_block_is_a_floor():
+    """A U-shaped walk (the 3D Scanner App corridor: 20 x 32 m round a block of offices, 2 m wide): the
+    corridor's floor covers a quarter of the area the cameras ring, with its middle inside the ring,
+    as a table under a circled object does; but here the cameras stand over the floor they see."""
+    rng = np.random.default_rng(10)
+    legs = [((0, 0), (0, 32)), ((0, 32), (20, 32)), ((20, 32), (20, 0))]  # corridor centre lines, metres
+    path = np.vstack([np.linspace(a, b, 50, endpoint=False) for a, b in legs])
+    heading = np.arctan2(*np.gradient(path, axis=0)[:, ::-1].T)
+    poses = [look_yaw_pitch([x, y, 1.45 + rng.normal(0, 0.05)], yaw, np.radians(-15)) for (x, y), yaw in zip(path, heading)]
+    # Floor points where the cameras looked, 1-4 m ahead, across the 2 m corridor.
+    ahead = rng.integers(0, len(path), 3000)
+    distance = rng.uniform(1.0, 4.0, 3000)
+    side = rng.uniform(-1.0, 1.0, 3000)
+    direction = np.column_stack([np.cos(heading[ahead]), np.sin(heading[ahead])])
+    across = direction[:, ::-1] * [1, -1]
+    floor_xy = path[ahead] + distance[:, None] * direction + side[:, None] * across
+    floor = np.column_stack([floor_xy, rng.normal(0, 0.01, 3000)])
+    walls = np.column_stack([path[ahead] + 1.0 * across, rng.uniform(0.0, 2.6, 3000)])
+    points = np.vstack([floor, walls])
+    centres = np.array([p[:3, 3] for p in poses])
+
+    search = find_floor_plane(points, centres)
+    assert search.plane is not None, search.reason
+    assert abs(search.plane.offset) < 0.02 and not search.plane.orbited
+    # Its footprint is small and ringed by the cameras: standing over it is what tells it from a table.
+    ring = 20 * 32
+    assert search.plane.area < 0.3 * ring
+
+
 def test_no_points_below_the_cameras_leaves_the_scale_unknown_and_says_so():
     poses = [look_at([2 * np.cos(a), 2 * np.sin(a), 1.5], [0, 0, 1.5]) for a in np.linspace(0, 6, 8)]
     ceiling = np.random.default_rng(9).uniform([-3, -3, 2.5], [3, 3, 2.6], size=(300, 3))

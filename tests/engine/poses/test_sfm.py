@@ -187,6 +187,63 @@ def test_fixed_intrinsics_sequential_matching_and_downscaling(room_photos):
     assert pose_errors([p for p, _ in posed], [t for _, t in posed])["rotation_deg_max"] < 1.0
 
 
+def _matched_pairs(database: Path) -> set[tuple[int, int]]:
+    """Photo index pairs (i < j, capture order) COLMAP verified in `database` (names are the indices)."""
+    import pycolmap
+
+    with pycolmap.Database.open(str(database)) as db:
+        index = {image.image_id: int(Path(image.name).stem) for image in db.read_all_images()}
+        pair_ids, inliers = db.read_two_view_geometry_num_inliers()
+    pairs = set()
+    for pair_id, count in zip(pair_ids, inliers):
+        if count >= 15:
+            a, b = pycolmap.pair_id_to_image_pair(pair_id)
+            pairs.add(tuple(sorted((index[a], index[b]))))
+    return pairs
+
+
+def test_sequential_matching_finds_the_same_place_far_apart_in_the_walk(room_photos, tmp_path):
+    """A walk round the room ends where it began. Sequential matching pairs each photo with the next
+    ones only (and at gaps of 2, 4, 8: COLMAP's quadratic overlap), so the last photo never meets the
+    first; loop detection, with a vocabulary tree trained on the photos' own features (COLMAP's would
+    be a download, impossible offline), matches them too."""
+    folder, _ = room_photos
+    sequential_gaps = {1, 2, 4, 8}
+    found = {}
+    for loops in (False, True):
+        work = tmp_path / f"loops_{loops}"
+        options = SfmOptions(matcher="sequential", sequential_overlap=1, loop_detection=loops, align=False, work_dir=work)
+        result = estimate_poses(photo_capture(folder), options)
+        assert len(result.registered) >= 10
+        found[loops] = {(i, j) for i, j in _matched_pairs(work / "database.db") if j - i not in sequential_gaps}
+        assert (work / "vocabulary_tree.bin").is_file() == loops
+    assert not found[False]
+    # Photos 0 and 11 (and 1 and 11, 0 and 10) stand side by side at the loop's closing.
+    assert found[True] & {(0, 11), (1, 11), (0, 10)}, found[True]
+
+
+def test_photos_far_apart_in_the_walk_need_strong_evidence_to_be_matched(tmp_path):
+    """A loop pair as weak as the look-alike corridors' false ones is forgotten before mapping; a strong
+    one and weak neighbours stay."""
+    import pycolmap
+
+    from engine.poses.sfm_worker import FAR_PAIR_MIN_INLIERS, drop_weak_far_pairs
+
+    database = tmp_path / "database.db"
+    with pycolmap.Database.open(str(database)) as db:
+        camera = db.write_camera(pycolmap.Camera(model="SIMPLE_PINHOLE", width=64, height=48, params=[100, 32, 24]))
+        ids = [db.write_image(pycolmap.Image(name=f"{i:06d}.jpg", camera_id=camera)) for i in range(40)]
+        for (i, j), count in {(0, 25): FAR_PAIR_MIN_INLIERS - 4, (1, 30): FAR_PAIR_MIN_INLIERS + 10, (5, 6): 16,
+                              (7, 12): 20}.items():
+            geometry = pycolmap.TwoViewGeometry()
+            geometry.config = 2  # calibrated
+            geometry.inlier_matches = np.array([[k, k] for k in range(count)], dtype=np.uint32)
+            db.write_two_view_geometry(ids[i], ids[j], geometry)
+
+    assert drop_weak_far_pairs(database, overlap=10) == 1
+    assert _matched_pairs(database) == {(1, 30), (5, 6), (7, 12)}
+
+
 def distort(image: np.ndarray, k1: float) -> np.ndarray:
     """The photo a lens with radial term k1 (x_d = x (1 + k1 r^2), normalised by K) would take."""
     rows, cols = np.mgrid[0:HEIGHT, 0:WIDTH].astype(np.float64)

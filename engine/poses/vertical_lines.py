@@ -1,0 +1,143 @@
+"""Gravity from the photos' vertical lines: door frames, wall corners, cabinet edges, window bars.
+
+The cameras' mean up (`engine.geometry.cameras.mean_up_direction`) is biased by however the phone
+was held: a corridor walked with the phone tilted down puts it 14 degrees off. Vertical lines in a
+room are vertical whatever the camera does, so they measure gravity directly. With the camera
+rotations known (SfM), each image segment defines its interpretation plane, the plane through the
+camera centre and the segment; its normal n (world axes) is perpendicular to the 3D line. For every
+vertical line n . up = 0, so up is the direction most perpendicular to the normals of the segments
+that are vertical:
+
+1. segments from OpenCV's line segment detector on each photo (as the engine sees it: EXIF
+   orientation applied, undistorted when SfM undistorted the photos), downscaled to
+   `MAX_SIDE` px; short segments are dropped (`MIN_LENGTH_FRACTION` of the image diagonal);
+2. candidates: segments whose plane contains a direction within `MAX_OFF_PRIOR_DEG` of the prior up
+   (the cameras' mean up), i.e. |n . prior| < sin(MAX_OFF_PRIOR_DEG);
+3. RANSAC over pairs of candidates (up = n1 x n2), inliers within `INLIER_DEG`; the winner is
+   refitted as the eigenvector of the smallest eigenvalue of sum(length * n n^T) over its inliers.
+
+Accepted only with `MIN_LINES` inlier segments in `MIN_PHOTOS` photos; otherwise None and the caller
+keeps its prior. Horizontal lines whose plane happens to contain the vertical (a floor seam running
+straight away below the camera) satisfy the same equation, so they do not bias the answer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Sequence
+
+import numpy as np
+
+from ..capture.images import load_image
+from ..capture.model import Frame
+from ..errors import CaptureError
+from ..geometry.cameras import scale_intrinsics
+
+MAX_SIDE = 640  # photos are read at this larger side: segments a few pixels long still fit in
+MAX_PHOTOS = 80  # an evenly spaced subset of the posed photos; more adds time, not accuracy
+MIN_LENGTH_FRACTION = 0.04  # a segment shorter than this share of the image diagonal is noise
+MAX_OFF_PRIOR_DEG = 25.0  # how far the cameras' mean up may be from gravity for a hand-held capture
+INLIER_DEG = 0.75  # |angle between a segment's plane and up| for an inlier
+RANSAC_ITERATIONS = 500
+MIN_LINES = 30
+MIN_PHOTOS = 3
+
+
+@dataclass(frozen=True)
+class LineGravity:
+    """Up (world axes, unit (3,)) as the vertical lines in the photos measure it."""
+
+    up: np.ndarray
+    lines: int  # inlier segments
+    photos: int  # photos with at least one inlier segment
+    candidates: int  # segments near the prior's vertical
+    spread_deg: float  # RMS angle of the inlier planes from `up`
+    off_prior_deg: float  # angle between `up` and the prior
+
+    def describe(self) -> str:
+        return (f"up from {self.lines} vertical lines in {self.photos} photos ({self.off_prior_deg:.1f} deg from the "
+                f"cameras' mean up)")
+
+
+def segment_plane_normals(frame: Frame) -> tuple[np.ndarray, np.ndarray]:
+    """The line segments of `frame`'s photo as interpretation-plane normals in world axes.
+
+    Returns (normals (M, 3) unit, lengths (M,) in pixels of the downscaled photo).
+    """
+    import cv2  # defers cv2 (OpenCV) off the light paths
+
+    assert frame.pose is not None and frame.K is not None
+    rgb = load_image(frame.image_path)
+    h, w = rgb.shape[:2]
+    factor = min(1.0, MAX_SIDE / max(w, h))
+    size = (max(1, round(w * factor)), max(1, round(h * factor)))
+    grey = cv2.cvtColor(cv2.resize(rgb, size, interpolation=cv2.INTER_AREA), cv2.COLOR_RGB2GRAY)
+    found = cv2.createLineSegmentDetector().detect(grey)[0]
+    if found is None:
+        return np.zeros((0, 3)), np.zeros(0)
+    ends = found.reshape(-1, 4).astype(np.float64)  # x1, y1, x2, y2
+    lengths = np.hypot(ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1])
+    keep = lengths >= MIN_LENGTH_FRACTION * float(np.hypot(*size))
+    ends, lengths = ends[keep], lengths[keep]
+    K = scale_intrinsics(frame.K, (frame.width, frame.height), size)
+    K_inv = np.linalg.inv(K)
+    ones = np.ones((len(ends), 1))
+    rays_a = np.hstack([ends[:, :2], ones]) @ K_inv.T
+    rays_b = np.hstack([ends[:, 2:], ones]) @ K_inv.T
+    normals = np.cross(rays_a, rays_b) @ frame.pose[:3, :3].T  # camera -> world axes
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return normals, lengths
+
+
+def up_from_vertical_lines(frames: Sequence[Frame], prior_up: np.ndarray, seed: int = 0) -> Optional[LineGravity]:
+    """Gravity's up (world axes) from the vertical lines seen by the posed `frames`, near `prior_up` (3,);
+    None when too few vertical lines are seen to trust it."""
+    posed = [f for f in frames if f.pose is not None and f.K is not None]
+    if len(posed) < MIN_PHOTOS:
+        return None
+    chosen = [posed[i] for i in np.unique(np.linspace(0, len(posed) - 1, min(MAX_PHOTOS, len(posed))).round().astype(int))]
+    prior = np.asarray(prior_up, dtype=np.float64) / np.linalg.norm(prior_up)
+    normals, lengths, owners = [], [], []
+    for index, frame in enumerate(chosen):
+        try:
+            n, length = segment_plane_normals(frame)
+        except CaptureError:  # an unreadable photo is reported where it matters (SfM, the fusion); here it adds no lines
+            continue
+        near = np.abs(n @ prior) < np.sin(np.radians(MAX_OFF_PRIOR_DEG))
+        normals.append(n[near])
+        lengths.append(length[near])
+        owners.append(np.full(int(near.sum()), index))
+    if sum(len(n) for n in normals) < MIN_LINES:
+        return None
+    n, length, owner = np.concatenate(normals), np.concatenate(lengths), np.concatenate(owners)
+
+    rng = np.random.default_rng(seed)
+    limit = np.sin(np.radians(INLIER_DEG))
+    best, best_score = None, -1.0
+    for _ in range(RANSAC_ITERATIONS):
+        i, j = rng.choice(len(n), 2, replace=False)
+        up = np.cross(n[i], n[j])
+        norm = np.linalg.norm(up)
+        if norm < 0.2:  # near-parallel planes pin no direction down
+            continue
+        up = up / norm * np.sign(up @ prior)
+        if up @ prior < np.cos(np.radians(MAX_OFF_PRIOR_DEG)):
+            continue
+        score = float(length[np.abs(n @ up) < limit].sum())
+        if score > best_score:
+            best, best_score = up, score
+    if best is None:
+        return None
+    up = best
+    for _ in range(3):
+        inliers = np.abs(n @ up) < limit
+        weighted = (n[inliers] * length[inliers, None]).T @ n[inliers]
+        refit = np.linalg.eigh(weighted)[1][:, 0]
+        up = refit * np.sign(refit @ prior)
+    inliers = np.abs(n @ up) < limit
+    photos = len(np.unique(owner[inliers]))
+    if inliers.sum() < MIN_LINES or photos < MIN_PHOTOS:
+        return None
+    spread = float(np.degrees(np.sqrt(np.mean(np.arcsin(np.clip(n[inliers] @ up, -1, 1)) ** 2))))
+    return LineGravity(up=up, lines=int(inliers.sum()), photos=photos, candidates=len(n), spread_deg=spread,
+                       off_prior_deg=float(np.degrees(np.arccos(np.clip(up @ prior, -1.0, 1.0)))))

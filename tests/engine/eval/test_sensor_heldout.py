@@ -1,0 +1,62 @@
+"""`engine eval-sensor`: a phone export's result against its own held-out LiDAR. The comparison is
+checked on a fixture 3D Scanner App export (frame i's LiDAR: a wall 1 + 0.1 i m ahead, confident on
+the left half) against walls placed by hand; the photos-alone variant's input is the photos only."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from fixtures_phone import walk, write_export
+
+from engine.capture import load_capture
+from engine.errors import VortxError
+from engine.eval.sensor_heldout import compare_to_sensor, photos_alone, split_capture
+from engine.mesh_io import Mesh
+
+
+def wall_ahead(pose: np.ndarray, distance: float, cells: int = 20) -> Mesh:
+    """A 2 x 2 m wall of 10 cm squares (a reconstruction's triangles are small) facing the camera at
+    `pose` (4, 4, OpenCV camera-to-world), `distance` m along its axis: it fills the fixture's view."""
+    x, y = np.meshgrid(np.linspace(-1, 1, cells + 1), np.linspace(-1, 1, cells + 1), indexing="ij")
+    corners = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, distance)])
+    world = corners @ pose[:3, :3].T + pose[:3, 3]
+    index = np.arange(x.size).reshape(x.shape)
+    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
+    faces = np.concatenate([np.column_stack([a, b, c]), np.column_stack([a, c, d])])
+    return Mesh(world.astype(np.float32), faces.astype(np.int32))
+
+
+@pytest.fixture
+def export(tmp_path):
+    return load_capture(write_export(tmp_path / "export", walk(6)))
+
+
+def test_a_wall_where_the_lidar_saw_it_agrees_and_one_10_cm_behind_does_not(export):
+    frame = export.frames[3]  # its LiDAR: 1.3 m everywhere, high confidence on the left half
+    right = compare_to_sensor(wall_ahead(frame.pose, 1.3), frame, frame.pose)
+    assert right["within_5cm"] == pytest.approx(1.0) and right["rendered"] == pytest.approx(1.0)
+    assert right["median_error_m"] < 0.005
+    assert right["pixels"] == 16 * 12 // 2  # the confident half only
+
+    behind = compare_to_sensor(wall_ahead(frame.pose, 1.4), frame, frame.pose)
+    assert behind["within_5cm"] == 0.0 and behind["rendered"] == pytest.approx(1.0)
+    assert behind["median_error_m"] == pytest.approx(0.1, abs=0.005)
+
+    # A mesh that is not in front of the camera leaves every confident pixel a miss.
+    away = compare_to_sensor(wall_ahead(frame.pose, -1.3), frame, frame.pose)
+    assert away["within_5cm"] == 0.0 and away["rendered"] == 0.0
+
+
+def test_held_out_frames_are_every_nth_and_the_photos_alone_have_nothing_but_pixels(export):
+    kept, held = split_capture(export, 2)
+    assert [f.name for f in held] == ["frame_00001.jpg", "frame_00003.jpg", "frame_00005.jpg"]
+    assert [f.name for f in kept.frames] == ["frame_00000.jpg", "frame_00002.jpg", "frame_00004.jpg"]
+    with pytest.raises(VortxError, match="--every must be at least 2"):
+        split_capture(export, 1)
+
+    alone = photos_alone(kept)
+    assert [f.image_path for f in alone.frames] == [f.image_path for f in kept.frames]
+    assert all(f.pose is None and f.K is None and f.sensor_depth is None for f in alone.frames)
+    assert not alone.metric and alone.pose_origin == "" and alone.format == "images" and alone.points is None
+    # The export itself is untouched: its held-out truth stays.
+    assert all(f.pose is not None and f.sensor_depth is not None for f in kept.frames)
