@@ -21,7 +21,9 @@ intrinsics and depth, structure from motion poses them and finds up and scale as
 (stereo alone, then), and the mesh is moved onto the phone's world by the similarity that fits the
 SfM camera centres to the phone's before it is compared. The phone's poses are the truth for what SfM
 found: the scale (phone metres per estimated metre, 1 when the floor-based scale is right) and how far
-"up" is off (`engine.poses.pose_errors`).
+"up" is off (`engine.poses.pose_errors`). Where the LiDAR is no input (`--photos-only`, `--variant
+stereo`), `--all-photos` keeps every photo in, as a user has them (SfM splits a walk with every
+other photo missing sooner), and the LiDAR of every N-th frame stays the truth.
 """
 
 from __future__ import annotations
@@ -159,6 +161,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--photos-only", action="store_true",
                         help="reconstruct from the kept photos alone (their poses, intrinsics and depth dropped, SfM "
                              "poses them) and report the scale and up it found against the phone's")
+    parser.add_argument("--all-photos", action="store_true",
+                        help="with --photos-only or --variant stereo (the LiDAR is no input): reconstruct from every "
+                             "photo and score on every N-th frame's LiDAR, as a user with all the photos gets")
     add_quality_argument(parser)
     add_setting_arguments(parser)  # the reconstruction's own flags (--finish, --max-room-size, ...)
 
@@ -167,9 +172,14 @@ def run(args: argparse.Namespace) -> int:
     capture = load_capture(args.capture)
     if not capture.frames_with_sensor_depth:
         raise VortxError(f"{args.capture} has no sensor depth maps to hold out: choose a phone export with LiDAR depth")
-    kept, held = split_capture(capture, args.every)
-    held = [f for f in held if f.sensor_depth is not None and f.pose is not None]
     variants = (False,) if args.photos_only else {"both": (True, False), "sensor": (True,), "stereo": (False,)}[args.variant]
+    if args.all_photos and any(variants):
+        raise VortxError("--all-photos: the sensor depth would be scored against itself; use it with --photos-only "
+                         "or --variant stereo")
+    kept, held = split_capture(capture, args.every)
+    if args.all_photos:
+        kept = capture
+    held = [f for f in held if f.sensor_depth is not None and f.pose is not None]
     progress = TqdmProgress(disable=args.quiet)
     try:
         settings = settings_from_quality_arguments(args)

@@ -60,3 +60,11 @@ def test_held_out_frames_are_every_nth_and_the_photos_alone_have_nothing_but_pix
     assert not alone.metric and alone.pose_origin == "" and alone.format == "images" and alone.points is None
     # The export itself is untouched: its held-out truth stays.
     assert all(f.pose is not None and f.sensor_depth is not None for f in kept.frames)
+
+
+def test_all_photos_refuses_to_score_the_sensor_depth_against_itself(tmp_path, capsys):
+    from engine.__main__ import main
+
+    folder = write_export(tmp_path / "export", walk(6))
+    assert main(["eval-sensor", str(folder), "--all-photos", "--variant", "sensor", "--quiet"]) != 0
+    assert "--all-photos: the sensor depth would be scored against itself" in capsys.readouterr().err
