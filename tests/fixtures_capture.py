@@ -275,3 +275,46 @@ def perturbed_poses(truth: list[np.ndarray], rng: np.random.Generator, max_shift
         p[:3, 3] += rng.uniform(-max_shift, max_shift, 3)
         out.append(p)
     return out
+
+
+def room_line_segments(vertical: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
+    """3D segments of a 6 x 5 x 2.6 m room (x 0..6, y 0..5, z up): door frames and corners (vertical,
+    unless `vertical` is False) and wall seams (horizontal)."""
+    segments = []
+    if vertical:
+        for x in np.linspace(0.5, 5.5, 9):
+            segments += [(np.array([x, 0.0, 0.0]), np.array([x, 0.0, 2.1])),
+                         (np.array([x, 5.0, 0.0]), np.array([x, 5.0, 2.1]))]
+        for y in np.linspace(0.5, 4.5, 7):
+            segments += [(np.array([0.0, y, 0.0]), np.array([0.0, y, 2.1])),
+                         (np.array([6.0, y, 0.0]), np.array([6.0, y, 2.1]))]
+    for z in (0.0, 1.0, 2.6):
+        segments += [(np.array([0.0, 0.0, z]), np.array([6.0, 0.0, z])), (np.array([0.0, 5.0, z]), np.array([6.0, 5.0, z])),
+                     (np.array([0.0, 0.0, z]), np.array([0.0, 5.0, z])), (np.array([6.0, 0.0, z]), np.array([6.0, 5.0, z]))]
+    return segments
+
+
+def draw_room_lines(folder: Path, poses: Sequence[np.ndarray], K: np.ndarray, size: tuple[int, int],
+                    vertical: bool = True) -> list:
+    """A grey photo per camera (folder/NNN.png) with `room_line_segments` drawn in white where they lie
+    in front of it; returns the engine Frames (path, size, K, pose)."""
+    from engine.capture.model import Frame
+
+    frames = []
+    for index, pose in enumerate(poses):
+        image = np.full((size[1], size[0], 3), 90, np.uint8)
+        for a, b in room_line_segments(vertical):
+            # Cut the segment to the part in front of the camera, then draw its projection.
+            depth_a, depth_b = (np.linalg.inv(pose) @ np.r_[a, 1.0])[2], (np.linalg.inv(pose) @ np.r_[b, 1.0])[2]
+            if max(depth_a, depth_b) < 0.2:
+                continue
+            if min(depth_a, depth_b) < 0.2:
+                cut = a + (0.2 - depth_a) / (depth_b - depth_a) * (b - a)
+                a, b = (cut, b) if depth_a < 0.2 else (a, cut)
+            u, v, _ = project_points(np.stack([a, b]), K, pose)
+            ends = np.clip(np.column_stack([u, v]), -5000, 5000).round().astype(int)
+            cv2.line(image, tuple(map(int, ends[0])), tuple(map(int, ends[1])), (235, 235, 235), 3, cv2.LINE_AA)
+        path = folder / f"{index:03d}.png"
+        cv2.imwrite(str(path), image)
+        frames.append(Frame(path, size[0], size[1], np.asarray(K, np.float64).copy(), np.asarray(pose, np.float64)))
+    return frames

@@ -21,8 +21,9 @@ differences the author states:
 - the world is not gravity's: the recording starts at the "zero" pose (the metadata's `initPose` is
   [0, 0, 0, 1, 0, 0, 0]), so the world's axes are the first frame's camera axes and its "up" is only
   as level as the phone was then. When the first pose is that zero pose, the world is levelled here:
-  turned about a horizontal axis so that the cameras' mean up is +Z (people hold the phone upright and
-  tilts up and down cancel out), with a note saying by how much;
+  turned about a horizontal axis so that up is +Z, up from the photos' vertical lines
+  (`engine.poses.vertical_lines`) or, when they show too few, the cameras' mean up (people hold the
+  phone upright, but often tilted down), with a note saying which and by how much;
 - front-camera (TrueDepth) recordings have no tracking: every pose is the zero pose. They are refused
   with what to do instead.
 The app records at up to 60 frames per second, so frames about 1/fps s apart are kept
@@ -35,6 +36,7 @@ from __future__ import annotations
 
 import json
 import re
+from dataclasses import replace
 from pathlib import Path
 from typing import Any, Optional
 
@@ -46,7 +48,7 @@ from ..jobs import CancelToken, ProgressFn
 from .arkit import arkit_to_engine, finish_phone_capture, frames_of_photos
 from .checks import SkippedPhotos, inspect_images
 from .geometry import PoseRepairs, pinhole
-from .model import Capture, SensorDepth
+from .model import Capture, Frame, SensorDepth
 from .naming import name_list
 from .options import LoadOptions
 from .stray_scanner import frames_at_rate, quaternion_transform
@@ -139,17 +141,25 @@ def _is_zero_pose(entry: Any) -> bool:
         return False
 
 
-def _levelled(poses: list[np.ndarray]) -> tuple[list[np.ndarray], float]:
-    """Engine poses (each (4, 4)) turned about a horizontal axis through the origin so that the mean of
-    the cameras' up vectors (-y, OpenCV axes) is +Z; and that turn in degrees. The smallest such
-    rotation, so the heading is kept. Poses whose up vectors cancel out are returned unchanged."""
+def _levelled(frames: list[Frame]) -> tuple[list[Frame], str]:
+    """`frames` turned about a horizontal axis through the origin so that up is +Z, and a note saying
+    how: up from the photos' vertical lines when they show enough, else the mean of the cameras' up
+    vectors (-y, OpenCV axes). The smallest such rotation, so the heading is kept. Frames whose up
+    vectors cancel out are returned unchanged."""
+    from ..poses.vertical_lines import up_from_vertical_lines  # defers OpenCV's line detector to this path
+
     try:
-        up = mean_up_direction(np.stack(poses))
+        mean_up = mean_up_direction(np.stack([f.pose for f in frames]))
     except PoseError:
-        return poses, 0.0
+        return frames, "Record3D's world starts at the first frame's camera, not at gravity, and the cameras point every way: not levelled"
+    lines = up_from_vertical_lines(frames, mean_up)
+    up = lines.up if lines is not None else mean_up
     turn = np.eye(4)
     turn[:3, :3] = rotation_taking(up, np.array([0.0, 0.0, 1.0]))
-    return [turn @ pose for pose in poses], float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    tilt = float(np.degrees(np.arccos(np.clip(up[2], -1.0, 1.0))))
+    how = lines.describe() if lines is not None else "the cameras' mean up"
+    return ([replace(f, pose=turn @ f.pose) for f in frames],
+            f"Record3D's world starts at the first frame's camera, not at gravity: levelled by {how} (turned {tilt:.1f} deg)")
 
 
 def _frame_times(data: dict[str, Any], indices: list[int], warnings: list[str]) -> list[float]:
@@ -216,13 +226,6 @@ def load_record3d(path: Path, options: LoadOptions, progress: Optional[ProgressF
                            "in recordings with the rear (LiDAR) camera, not the front (TrueDepth) one. Record the room "
                            f"again with the rear camera, or choose the folder {rgbd} to load the photos without poses "
                            "(structure from motion then estimates them).")
-    notes = []
-    if _is_zero_pose(poses[0]):  # the world is the first frame's camera, not gravity's (see above)
-        levelled, tilt = _levelled([pose for _, _, pose, _ in posed])
-        posed = [(index, photo, pose, K) for (index, photo, _, K), pose in zip(posed, levelled)]
-        notes.append(f"Record3D's world starts at the first frame's camera, not at gravity: levelled by the cameras' "
-                     f"mean up (turned {tilt:.1f} deg)")
-
     times = _frame_times(data, [index for index, _, _, _ in posed], warnings)
     kept = [posed[i] for i in frames_at_rate(times, options.fps)]
     depth_size = _depth_size(data)
@@ -248,7 +251,9 @@ def load_record3d(path: Path, options: LoadOptions, progress: Optional[ProgressF
     frames, usable_infos = frames_of_photos([(photo, pose, K, stated_size, sensor) for photo, pose, K, sensor in entries],
                                             infos, skipped, lambda photo: METADATA, warnings)
     capture = finish_phone_capture(path, "record3d", APP, frames, usable_infos, path, options, warnings, skipped)
-    capture.notes += notes
+    if _is_zero_pose(poses[0]) and capture.frames:  # the world is the first frame's camera, not gravity's (see above)
+        capture.frames, note = _levelled(capture.frames)
+        capture.notes.append(note)
     if len(kept) < len(posed):
         capture.notes.append(f"{len(kept)} of the {len(posed)} posed frames kept (about {options.fps:g} per second)")
     return capture

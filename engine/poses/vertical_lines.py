@@ -10,7 +10,8 @@ that are vertical:
 
 1. segments from OpenCV's line segment detector on each photo (as the engine sees it: EXIF
    orientation applied, undistorted when SfM undistorted the photos), downscaled to
-   `MAX_SIDE` px; short segments are dropped (`MIN_LENGTH_FRACTION` of the image diagonal);
+   `MAX_SIDE` px; short segments are dropped (`MIN_LENGTH_FRACTION` of the image diagonal, at least
+   `MIN_LENGTH_PX`);
 2. candidates: segments whose plane contains a direction within `MAX_OFF_PRIOR_DEG` of the prior up
    (the cameras' mean up), i.e. |n . prior| < sin(MAX_OFF_PRIOR_DEG);
 3. RANSAC over pairs of candidates (up = n1 x n2), inliers within `INLIER_DEG`; the winner is
@@ -36,6 +37,7 @@ from ..geometry.cameras import scale_intrinsics
 MAX_SIDE = 640  # photos are read at this larger side: segments a few pixels long still fit in
 MAX_PHOTOS = 80  # an evenly spaced subset of the posed photos; more adds time, not accuracy
 MIN_LENGTH_FRACTION = 0.04  # a segment shorter than this share of the image diagonal is noise
+MIN_LENGTH_PX = 16.0  # ... and one this short pins no direction down in any photo (a thumbnail gives none)
 MAX_OFF_PRIOR_DEG = 25.0  # how far the cameras' mean up may be from gravity for a hand-held capture
 INLIER_DEG = 0.75  # |angle between a segment's plane and up| for an inlier
 RANSAC_ITERATIONS = 500
@@ -77,7 +79,7 @@ def segment_plane_normals(frame: Frame) -> tuple[np.ndarray, np.ndarray]:
         return np.zeros((0, 3)), np.zeros(0)
     ends = found.reshape(-1, 4).astype(np.float64)  # x1, y1, x2, y2
     lengths = np.hypot(ends[:, 2] - ends[:, 0], ends[:, 3] - ends[:, 1])
-    keep = lengths >= MIN_LENGTH_FRACTION * float(np.hypot(*size))
+    keep = lengths >= max(MIN_LENGTH_PX, MIN_LENGTH_FRACTION * float(np.hypot(*size)))
     ends, lengths = ends[keep], lengths[keep]
     K = scale_intrinsics(frame.K, (frame.width, frame.height), size)
     K_inv = np.linalg.inv(K)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
@@ -21,7 +22,7 @@ from engine.capture import detect_format, load_capture
 from engine.capture.sensor_depth import read_sensor_depth
 from engine.errors import CaptureError
 from engine.geometry.cameras import project_points
-from fixtures_capture import rotation_to_quaternion, textured_image, write_image, write_video
+from fixtures_capture import draw_room_lines, look_yaw_pitch, rotation_to_quaternion, textured_image, write_image, write_video
 
 W, H = 64, 48  # photos and video frames
 DW, DH = 16, 12  # depth maps: the photo's aspect ratio, as the apps write them (256 x 192 for 1920 x 1440)
@@ -320,6 +321,26 @@ def test_record3d_world_of_the_first_camera_is_levelled(tmp_path):
     for frame, t in zip(capture.frames[1:], relative[1:]):
         np.testing.assert_allclose(np.linalg.norm(frame.pose[:3, 3] - capture.frames[0].pose[:3, 3]),
                                    np.linalg.norm(t[:3, 3]), atol=1e-9)
+
+
+def test_record3d_world_is_levelled_by_the_photos_vertical_lines(tmp_path):
+    """Photos with door frames and corners, taken walking along a wall with the phone 15 deg down (the
+    cameras' mean up leans with it) in a world turned as the first camera's is: the levelling takes up
+    from the vertical lines, so every camera sees +Z where gravity is."""
+    from engine.capture.record3d import _levelled
+
+    K_lines = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
+    truth = [look_yaw_pitch([x, 1.0, 1.5], np.pi / 2 + np.radians(yaw), np.radians(-15.0))
+             for x, yaw in zip(np.linspace(1.0, 5.0, 10), np.linspace(40, -40, 10))]
+    frames = draw_room_lines(tmp_path, truth, K_lines, (640, 480))
+    first_camera_world = np.linalg.inv(truth[0])  # Record3D's world: the first camera's axes
+    in_app_world = [replace(f, pose=first_camera_world @ f.pose) for f in frames]
+
+    levelled, note = _levelled(in_app_world)
+
+    seen_up = [np.degrees(np.arccos(np.clip(f.pose[2, :3] @ t[2, :3], -1, 1))) for f, t in zip(levelled, truth)]
+    assert max(seen_up) < 0.3
+    assert "levelled by up from" in note and "vertical lines in 10 photos" in note
 
 
 def test_record3d_front_camera_recording_without_poses_is_refused(tmp_path):

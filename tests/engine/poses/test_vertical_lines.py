@@ -5,12 +5,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import cv2
 import numpy as np
-from fixtures_capture import look_yaw_pitch as look
+from fixtures_capture import draw_room_lines, look_yaw_pitch as look
 
 from engine.capture.model import Capture, Frame
-from engine.geometry.cameras import mean_up_direction, project_points
+from engine.geometry.cameras import mean_up_direction
 from engine.poses.align import Similarity
 from engine.poses.gravity import align_gravity_and_scale
 from engine.poses.vertical_lines import up_from_vertical_lines
@@ -18,45 +17,6 @@ from engine.poses.vertical_lines import up_from_vertical_lines
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 SIZE = (640, 480)
 PITCH_DEG = -15.0  # every camera looks down: the cameras' mean up leans 15 deg back from gravity
-
-
-def box_room_segments(vertical: bool = True) -> list[tuple[np.ndarray, np.ndarray]]:
-    """3D segments of a 6 x 5 x 2.6 m room: door frames and corners (vertical), wall seams (horizontal)."""
-    segments = []
-    if vertical:
-        for x in np.linspace(0.5, 5.5, 9):
-            segments += [(np.array([x, 0.0, 0.0]), np.array([x, 0.0, 2.1])),
-                         (np.array([x, 5.0, 0.0]), np.array([x, 5.0, 2.1]))]
-        for y in np.linspace(0.5, 4.5, 7):
-            segments += [(np.array([0.0, y, 0.0]), np.array([0.0, y, 2.1])),
-                         (np.array([6.0, y, 0.0]), np.array([6.0, y, 2.1]))]
-    for z in (0.0, 1.0, 2.6):
-        segments += [(np.array([0.0, 0.0, z]), np.array([6.0, 0.0, z])), (np.array([0.0, 5.0, z]), np.array([6.0, 5.0, z])),
-                     (np.array([0.0, 0.0, z]), np.array([0.0, 5.0, z])), (np.array([6.0, 0.0, z]), np.array([6.0, 5.0, z]))]
-    return segments
-
-
-def draw_photos(folder: Path, poses: list[np.ndarray], segments) -> list[Frame]:
-    """A grey photo per camera with the segments that lie in front of it drawn in white."""
-    frames = []
-    for index, pose in enumerate(poses):
-        image = np.full((SIZE[1], SIZE[0], 3), 90, np.uint8)
-        for a, b in segments:
-            # Cut the segment to the part in front of the camera, then draw its projection.
-            depth_a, depth_b = (np.linalg.inv(pose) @ np.r_[a, 1.0])[2], (np.linalg.inv(pose) @ np.r_[b, 1.0])[2]
-            if max(depth_a, depth_b) < 0.2:
-                continue
-            if min(depth_a, depth_b) < 0.2:
-                t = (0.2 - depth_a) / (depth_b - depth_a)
-                cut = a + t * (b - a)
-                a, b = (cut, b) if depth_a < 0.2 else (a, cut)
-            u, v, _ = project_points(np.stack([a, b]), K, pose)
-            ends = np.clip(np.column_stack([u, v]), -5000, 5000).round().astype(int)
-            cv2.line(image, tuple(ends[0]), tuple(ends[1]), (235, 235, 235), 3, cv2.LINE_AA)
-        path = folder / f"{index:03d}.png"
-        cv2.imwrite(str(path), image)
-        frames.append(Frame(path, SIZE[0], SIZE[1], K.copy(), pose))
-    return frames
 
 
 def tilted_walk() -> list[np.ndarray]:
@@ -77,7 +37,7 @@ def up_seen_error_deg(estimated: np.ndarray, true: np.ndarray) -> float:
 
 def test_vertical_lines_give_gravity_where_the_cameras_mean_up_leans(tmp_path):
     poses = tilted_walk()
-    frames = draw_photos(tmp_path, poses, box_room_segments())
+    frames = draw_room_lines(tmp_path, poses, K, SIZE)
     prior = mean_up_direction(np.stack(poses))
     assert angle_deg(prior, [0, 0, 1]) > 10  # the prior really is off
 
@@ -91,7 +51,7 @@ def test_vertical_lines_give_gravity_where_the_cameras_mean_up_leans(tmp_path):
 
 def test_photos_without_vertical_lines_give_no_answer(tmp_path):
     poses = tilted_walk()
-    frames = draw_photos(tmp_path, poses, box_room_segments(vertical=False))
+    frames = draw_room_lines(tmp_path, poses, K, SIZE, vertical=False)
     assert up_from_vertical_lines(frames, mean_up_direction(np.stack(poses))) is None
 
 
@@ -99,7 +59,7 @@ def test_alignment_puts_the_lines_up_on_z_and_says_so(tmp_path):
     """An SfM-like world: the drawn room turned and scaled arbitrarily. The alignment brings the lines'
     up back onto +Z (the cameras' mean up would leave it 15 deg off) and reports where up came from."""
     poses = tilted_walk()
-    frames = draw_photos(tmp_path, poses, box_room_segments())
+    frames = draw_room_lines(tmp_path, poses, K, SIZE)
     q, _ = np.linalg.qr(np.random.default_rng(3).standard_normal((3, 3)))
     to_sfm = Similarity(q * np.sign(np.linalg.det(q)), np.array([0.4, -1.0, 2.0]), 0.37)
     rng = np.random.default_rng(0)
@@ -118,7 +78,7 @@ def test_alignment_puts_the_lines_up_on_z_and_says_so(tmp_path):
 
 def test_a_floor_that_disagrees_with_the_lines_is_reported(tmp_path):
     poses = tilted_walk()
-    frames = draw_photos(tmp_path, poses, box_room_segments())
+    frames = draw_room_lines(tmp_path, poses, K, SIZE)
     rng = np.random.default_rng(0)
     xy = np.column_stack([rng.uniform(0, 6, 500), rng.uniform(0, 5, 500)])
     ramp = np.column_stack([xy, np.tan(np.radians(6.0)) * (xy[:, 0] - 3.0)])  # a floor sloping 6 deg
