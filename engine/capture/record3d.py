@@ -45,6 +45,7 @@ import numpy as np
 from ..errors import CaptureError, PoseError
 from ..geometry.cameras import mean_up_direction, rotation_taking
 from ..jobs import CancelToken, ProgressFn
+from ..poses.vertical_lines import up_from_vertical_lines
 from .arkit import arkit_to_engine, finish_phone_capture, frames_of_photos
 from .checks import SkippedPhotos, inspect_images
 from .geometry import PoseRepairs, pinhole
@@ -146,8 +147,6 @@ def _levelled(frames: list[Frame]) -> tuple[list[Frame], str]:
     how: up from the photos' vertical lines when they show enough, else the mean of the cameras' up
     vectors (-y, OpenCV axes). The smallest such rotation, so the heading is kept. Frames whose up
     vectors cancel out are returned unchanged."""
-    from ..poses.vertical_lines import up_from_vertical_lines  # defers OpenCV's line detector to this path
-
     try:
         mean_up = mean_up_direction(np.stack([f.pose for f in frames]))
     except PoseError:
