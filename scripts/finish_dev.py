@@ -14,6 +14,8 @@ A phone export with LiDAR (the 3D Scanner App corridor) is scored against its ow
 
     python scripts/finish_dev.py cache-heldout CORRIDOR/All_Data /tmp/corridor.pkl -- --max-room-size 40 40 6
     python scripts/finish_dev.py score-heldout /tmp/corridor.pkl --modes off,room
+    # stereo alone from every photo (the LiDAR only as truth), as `eval-sensor --variant stereo --all-photos`
+    python scripts/finish_dev.py cache-heldout CORRIDOR/All_Data /tmp/corridor_stereo.pkl -- --variant stereo --all-photos
 
 `cache` writes the recorded run (world mesh, depth maps, camera centres, the world -> output similarity)
 as a pickle (a development file, not a product format). `score` moves each finished mesh to the output
@@ -88,6 +90,10 @@ def cache_heldout(capture: Path, out: Path, flags: list[str]) -> None:
     args = parser.parse_args([str(capture), *flags])
     capture_data = load_capture(capture)
     kept, held = sensor_heldout.split_capture(capture_data, args.every)
+    if args.all_photos:  # the LiDAR is no input (stereo alone): every photo in, as eval-sensor --all-photos
+        if args.variant != "stereo":
+            raise SystemExit("--all-photos needs --variant stereo (the sensor depth would be scored against itself)")
+        kept = capture_data
     held = [f for f in held if f.sensor_depth is not None and f.pose is not None]
     record: dict = {}
 
@@ -127,7 +133,7 @@ def cache_heldout(capture: Path, out: Path, flags: list[str]) -> None:
 
 
 def score_heldout(cached: Path, modes: list[str], save: Path | None) -> None:
-    from engine.eval.sensor_heldout import compare_to_sensor
+    from engine.eval.sensor_heldout import compare_to_sensor, mean_of_rows
     from engine.finish.finishing import finish_mesh
     from engine.mesh_io import write_ply
 
@@ -141,9 +147,10 @@ def score_heldout(cached: Path, modes: list[str], save: Path | None) -> None:
         for plane in result.planes:
             print("   ", plane.to_dict())
         rows = [r for frame, pose in record["held"] if (r := compare_to_sensor(result.mesh, frame, pose)) is not None]
-        mean = {key: float(np.nanmean([r[key] for r in rows])) for key in ("within_5cm", "rendered", "median_error_m")}
+        mean = mean_of_rows(rows)
         print(f"{mode:<8} within 5 cm {mean['within_5cm']:.3f}  rendered {mean['rendered']:.3f}  "
-              f"median {100 * mean['median_error_m']:.1f} cm  faces {len(result.mesh.faces)}")
+              f"median {100 * mean['median_error_m']:.1f} cm  gaps filled {mean['gap_rendered']:.3f}  "
+              f"faces {len(result.mesh.faces)}")
         if save is not None:
             save.mkdir(parents=True, exist_ok=True)
             write_ply(save / f"{mode}.ply", result.mesh.vertices, result.mesh.faces, attributes=result.mesh.attributes or None)

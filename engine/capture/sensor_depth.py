@@ -23,6 +23,7 @@ from .naming import name_list
 
 ENCODINGS = ("png_mm", "r3d")
 HIGH_CONFIDENCE = 2  # ARConfidenceLevel.high
+MEDIUM_CONFIDENCE = 1  # ARConfidenceLevel.medium; below it (low) ARKit's depth is a guess, not a measurement
 # Phone LiDAR measures to about 5 m; anything beyond is an artefact of the file, not a depth.
 MAX_SENSOR_DEPTH_M = 10.0
 
@@ -52,6 +53,15 @@ def read_sensor_depth(sensor: SensorDepth) -> tuple[np.ndarray, Optional[np.ndar
         confidence = np.round(confidence.astype(np.float32) * HIGH_CONFIDENCE / sensor.confidence_high).astype(np.uint8)
     depth = np.where(np.isfinite(depth) & (depth > 0) & (depth < MAX_SENSOR_DEPTH_M), depth, 0.0).astype(np.float32)
     return depth, confidence
+
+
+def sensor_measured(depth: np.ndarray, confidence: Optional[np.ndarray]) -> np.ndarray:
+    """(h, w) bool: where the sensor measured a depth the reconstruction takes (a return, and confidence
+    medium or high when the app exports one), as `read_sensor_depth` returns them."""
+    measured = depth > 0
+    if confidence is not None:
+        measured &= confidence >= MEDIUM_CONFIDENCE
+    return measured
 
 
 def _read_png(path: Path, dtype: type, what: str) -> np.ndarray:

@@ -10,7 +10,11 @@ then averaged:
 - `within_5cm`: share of the confident pixels whose rendered depth is within 5 cm of the LiDAR's (a
   pixel where the mesh has no surface counts as a miss);
 - `rendered`: share of the confident pixels where the mesh has a surface at all;
-- `median_error_m`: median |rendered - LiDAR| where both exist.
+- `median_error_m`: median |rendered - LiDAR| where both exist;
+- `gap_rendered`: share of the frame's pixels where the sensor measured nothing the reconstruction
+  takes (no return, or ARKit confidence low: glass, black, the far end of a corridor; `gap_share` of
+  the frame) where the mesh has a surface all the same: what the walk's other photos filled in. No
+  truth says where that surface should be, so it is coverage, not accuracy.
 
 Both variants run by default (sensor depth on, then stereo alone), so each number stands beside its
 baseline measured the same way; the reconstruction's own flags (`--finish`, `--max-room-size`, ...)
@@ -39,7 +43,7 @@ import numpy as np
 
 from ..capture import load_capture
 from ..capture.model import Capture, Frame
-from ..capture.sensor_depth import HIGH_CONFIDENCE, read_sensor_depth
+from ..capture.sensor_depth import HIGH_CONFIDENCE, read_sensor_depth, sensor_measured
 from ..errors import VortxError
 from ..geometry.cameras import scale_intrinsics
 from ..geometry.depth_render import render_depth
@@ -79,12 +83,21 @@ def compare_to_sensor(mesh: Mesh, frame: Frame, pose: np.ndarray) -> Optional[di
     rendered = render_depth(mesh.vertices, mesh.faces, K, pose, (w, h))
     hit = np.isfinite(rendered) & confident
     error = np.abs(rendered - truth)
+    gap = ~sensor_measured(truth, confidence)
     return {
         "within_5cm": float((hit & (error < AGREEMENT_M)).sum() / confident.sum()),
         "rendered": float(hit.sum() / confident.sum()),
         "median_error_m": float(np.median(error[hit])) if hit.any() else float("nan"),
         "pixels": int(confident.sum()),
+        "gap_share": float(gap.mean()),
+        "gap_rendered": float((np.isfinite(rendered) & gap).sum() / gap.sum()) if gap.any() else float("nan"),
     }
+
+
+def mean_of_rows(rows: list[dict[str, float]]) -> dict[str, float]:
+    """The held-out frames' mean of each `compare_to_sensor` score (a frame without a gap has none)."""
+    keys = ("within_5cm", "rendered", "median_error_m", "gap_share", "gap_rendered")
+    return {key: float(np.nanmean([r[key] for r in rows])) for key in keys}
 
 
 def photos_alone(capture: Capture) -> Capture:
@@ -125,7 +138,7 @@ def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, 
             rows.append({"frame": frame.name, **row})
     if not rows:
         raise VortxError("no held-out frame has confident sensor depth to compare with")
-    mean = {key: float(np.nanmean([r[key] for r in rows])) for key in ("within_5cm", "rendered", "median_error_m")}
+    mean = mean_of_rows(rows)
     return {"sensor_depth": settings.sensor_depth and not photos_only, "photos_only": photos_only,
             "poses_found": poses_found, "settings": settings.to_dict(), "keep_poses": keep_poses,
             "poses_refined": prepared.refinement is not None, "frames_in": len(kept.frames), "held_out": len(rows),
@@ -134,12 +147,16 @@ def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, 
 
 
 def format_rows(results: list[dict]) -> str:
-    lines = [f"{'variant':<22}{'within 5 cm':>12}{'rendered':>10}{'median err':>12}{'faces':>9}{'time':>8}"]
+    lines = [f"{'variant':<22}{'within 5 cm':>12}{'rendered':>10}{'median err':>12}{'gaps filled':>13}{'faces':>9}"
+             f"{'time':>8}"]
     for r in results:
         m = r["mean"]
         name = "photos alone (SfM)" if r.get("photos_only") else "sensor depth" if r["sensor_depth"] else "stereo alone"
         lines.append(f"{name:<22}{m['within_5cm']:>12.3f}{m['rendered']:>10.3f}{100 * m['median_error_m']:>10.1f}cm"
-                     f"{r['faces']:>9}{r['seconds']:>7.0f}s")
+                     f"{m['gap_rendered']:>13.3f}{r['faces']:>9}{r['seconds']:>7.0f}s")
+    if results:
+        lines.append(f"gaps filled: of the held-out pixels where the sensor measured nothing "
+                     f"({results[0]['mean']['gap_share']:.0%} of them), the share the mesh covers")
     for r in results:
         found = r.get("poses_found")
         if found:

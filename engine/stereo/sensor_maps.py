@@ -21,12 +21,11 @@ import numpy as np
 
 from ..capture.images import resized_size
 from ..capture.model import Frame, SensorDepth
-from ..capture.sensor_depth import HIGH_CONFIDENCE, read_sensor_depth
+from ..capture.sensor_depth import HIGH_CONFIDENCE, MEDIUM_CONFIDENCE, read_sensor_depth
 from ..geometry.cameras import scale_intrinsics
 from ..geometry.depth_normals import depth_normals
 from .depth_maps import DepthMap
 
-MEDIUM_CONFIDENCE = 1  # ARConfidenceLevel.medium
 # Fusion confidence of a medium sensor depth (a high one counts 1). Without a confidence map (an app
 # that exports none) every sensor depth counts as medium.
 MEDIUM_WEIGHT = 0.5

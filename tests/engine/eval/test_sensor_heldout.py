@@ -37,6 +37,8 @@ def test_a_wall_where_the_lidar_saw_it_agrees_and_one_10_cm_behind_does_not(expo
     assert right["within_5cm"] == pytest.approx(1.0) and right["rendered"] == pytest.approx(1.0)
     assert right["median_error_m"] < 0.005
     assert right["pixels"] == 16 * 12 // 2  # the confident half only
+    # The right half's confidence is low: a gap in the sensor's depth, which the wall fills.
+    assert right["gap_share"] == pytest.approx(0.5) and right["gap_rendered"] == pytest.approx(1.0)
 
     behind = compare_to_sensor(wall_ahead(frame.pose, 1.4), frame, frame.pose)
     assert behind["within_5cm"] == 0.0 and behind["rendered"] == pytest.approx(1.0)
@@ -44,7 +46,18 @@ def test_a_wall_where_the_lidar_saw_it_agrees_and_one_10_cm_behind_does_not(expo
 
     # A mesh that is not in front of the camera leaves every confident pixel a miss.
     away = compare_to_sensor(wall_ahead(frame.pose, -1.3), frame, frame.pose)
-    assert away["within_5cm"] == 0.0 and away["rendered"] == 0.0
+    assert away["within_5cm"] == 0.0 and away["rendered"] == 0.0 and away["gap_rendered"] == 0.0
+
+
+def test_the_sensor_gaps_count_as_filled_only_where_the_mesh_covers_them(export):
+    frame = export.frames[3]
+    wall = wall_ahead(frame.pose, 1.3)
+    # Keep only the wall's left half as the camera sees it (camera x < 0): the sensor's measured half.
+    in_camera = (wall.vertices - frame.pose[:3, 3]) @ frame.pose[:3, :3]
+    left = np.all(in_camera[wall.faces][..., 0] <= 1e-6, axis=1)
+    row = compare_to_sensor(Mesh(wall.vertices, wall.faces[left]), frame, frame.pose)
+    assert row["within_5cm"] == pytest.approx(1.0)
+    assert row["gap_rendered"] < 0.1
 
 
 def test_held_out_frames_are_every_nth_and_the_photos_alone_have_nothing_but_pixels(export):
