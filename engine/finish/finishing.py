@@ -313,7 +313,7 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
             span = np.percentile(wall_coords, 1) - SNAP_DISTANCE, np.percentile(wall_coords, 99) + SNAP_DISTANCE
             inside_walls &= ~((wall.distance(centres) < -cell) & (along >= span[0]) & (along <= span[1]))
     grid.observed &= inside_walls.reshape(shape)
-    votes: Votes = view_votes(centres, views)
+    votes: Votes = view_votes(centres, views, plane_normal=plane.normal)
     grid.free = votes.free().reshape(shape)
     grid.open = votes.contradicted().reshape(shape)
     grid.keep = grid.observed.copy()

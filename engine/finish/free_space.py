@@ -6,7 +6,9 @@ the point, so the point is free space (an open door, a window, air in front of a
 -> the point was *hidden* behind something (the wall behind a wardrobe). No depth at the pixel, or
 the point outside the image: no vote. The finishing stage reads these votes to bound planes (a wall
 is not extended where views saw through it), to close holes (only where no view saw through) and to
-judge pieces (a piece in free space or seen by too few views is dropped).
+judge pieces (a piece in free space or seen by too few views is dropped). A view that meets a plane at
+a grazing angle does not hide that plane's points (`view_votes(plane_normal=...)`): what stands in
+front of them along the ray is mostly the plane's own surface.
 
 The stereo method's own depth maps are the views (`engine.stereo.depth_maps.DepthMap` has the fields);
 a method without depth maps uses the mesh's own depth from the keyframes (`mesh_depth_views`).
@@ -80,10 +82,19 @@ class Votes:
         return (self.through > 0) & (3 * self.through > self.seen + self.hidden)
 
 
-def view_votes(points: np.ndarray, views: Sequence[DepthView]) -> Votes:
+# A view that sees a plane's point at less than this angle to the plane says nothing about it: along a
+# corridor wall, the wall itself hides the open doorway at its end from every camera down the leg
+# (the 3D Scanner App corridor: 14 such views against the 3 that saw through it closed the corner).
+MIN_GRAZING_DEG = 15.0
+
+
+def view_votes(points: np.ndarray, views: Sequence[DepthView], plane_normal: Optional[np.ndarray] = None) -> Votes:
     """The votes of `views` on world `points` (N, 3): see the module doc; a view's depth agrees with a
-    point's within its `agreement` (metres + share x depth)."""
+    point's within its `agreement` (metres + share x depth). With `plane_normal` (3,) the points lie on
+    that plane, and a view whose ray meets it at under MIN_GRAZING_DEG casts no vote there (it still
+    frames the point: `in_view`)."""
     points = np.asarray(points, np.float64).reshape(-1, 3)
+    min_sine = np.sin(np.radians(MIN_GRAZING_DEG))
     seen = np.zeros(len(points), np.int32)
     through = np.zeros(len(points), np.int32)
     hidden = np.zeros(len(points), np.int32)
@@ -95,12 +106,16 @@ def view_votes(points: np.ndarray, views: Sequence[DepthView]) -> Votes:
         in_view[ids] += 1
         d = depth[np.floor(v).astype(np.int64), np.floor(u).astype(np.int64)].astype(np.float64)
         valid = (d > 0) & np.isfinite(d)
-        ids, z, d = ids[valid], z[valid], d[valid]
+        grazing = np.zeros(len(ids), bool)
+        if plane_normal is not None:
+            rays = points[ids] - np.asarray(view.pose, np.float64)[:3, 3]
+            grazing = np.abs(rays @ plane_normal) < min_sine * np.linalg.norm(rays, axis=1)
+        ids, z, d, grazing = ids[valid], z[valid], d[valid], grazing[valid]
         agree_metres, agree_relative = view.agreement or (AGREE_METRES, AGREE_RELATIVE)
         margin = agree_metres + agree_relative * z
         seen[ids[np.abs(d - z) <= margin]] += 1
         through[ids[d > z + margin]] += 1
-        hidden[ids[d < z - margin]] += 1
+        hidden[ids[(d < z - margin) & ~grazing]] += 1
     return Votes(seen, through, hidden, in_view)
 
 

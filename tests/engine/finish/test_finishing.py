@@ -474,3 +474,18 @@ def test_a_ceiling_is_added_only_over_the_floor():
     corridor = (centres[..., 1] > 0.2) & (centres[..., 1] < 1.8) & (centres[..., 0] > 0.2) & (centres[..., 0] < 5.8)
     over = over_floor(ceiling_grid, floor_grid)
     assert not over[block].any() and over[corridor].all()
+
+
+def test_a_view_along_a_plane_does_not_hide_its_points_but_one_seeing_past_them_still_counts():
+    # The camera looks down +z; the point is 10 m ahead and 0.5 m aside, on the plane x = 0.5 (a
+    # corridor wall's line): the ray meets that plane at 3 deg. Seen head-on, the plane is z = 10.
+    K = np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]])
+    point = np.array([[0.5, 0.0, 10.0]])
+    along, facing = np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0])
+    nearer = [PlainDepthView(np.full((48, 64), 5.0, np.float32), K, np.eye(4))]  # something 5 m ahead
+    assert view_votes(point, nearer).hidden[0] == 1
+    assert view_votes(point, nearer, plane_normal=facing).hidden[0] == 1
+    grazing = view_votes(point, nearer, plane_normal=along)
+    assert grazing.hidden[0] == 0 and grazing.in_view[0] == 1  # framed, but no say on the point
+    farther = [PlainDepthView(np.full((48, 64), 20.0, np.float32), K, np.eye(4))]  # it saw past the point
+    assert view_votes(point, farther, plane_normal=along).through[0] == 1
