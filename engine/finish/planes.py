@@ -7,8 +7,9 @@ the horizon (`room_up`), and the finishing levels it again by the floor's own no
 good (`floor_up`, engine/finish/finishing.py).
 - floor and ceiling: area-weighted histograms of the height of the faces that face up (floor) or
   down (ceiling); the floor is the lowest strong peak below the cameras with little surface below it
-  (stereo's error may put crumpled surface there, but not a lower up-facing one), the ceiling the
-  highest above them (a table top is a smaller, higher peak).
+  (stereo's error may put crumpled surface there, but not a lower up-facing one) that is not the echo
+  of a room-sized one above it (a glossy floor's reflection), the ceiling the highest above them (a
+  table top is a smaller, higher peak).
 - walls: faces that face sideways vote with their normal's heading; the room's Manhattan frame is the
   heading (mod 90 deg) that most wall area agrees with. Where it holds (most vertical area within
   `MANHATTAN_TOLERANCE_DEG` of its four directions) those four directions are the walls' normals,
@@ -63,6 +64,12 @@ BELOW_FLOOR_DEPTH = 0.7  # m
 # for the surface below it. Table tops stand 40 cm and more above the floor.
 FLOOR_LAYER = 0.2  # m
 MAX_UP_BELOW_FLOOR_SHARE = 0.5  # up-facing surface below a floor (a lower floor: the candidate is a table top)
+# A floor candidate under a room-sized one (over FURNITURE_MAX_AREA m^2) that has ECHO_AREA_RATIO times
+# its area, both with little below them, is that floor's reflection: the 3D Scanner App corridor's glossy
+# floor gave stereo 2.5 m^2 of surface 26 cm below its 64 m^2 floor (the far leg, where the floor itself
+# was hardly matched), which was then taken as the floor and the whole floor laid 26 cm low.
+ECHO_AREA_RATIO = 10.0
+FURNITURE_MAX_AREA = 6.0  # m^2: a large dining table is 2-3 m^2
 # The room's up from the cameras' horizon (`room_up`): considered from MIN_TILT_DEG off world Z; beyond
 # MAX_TILT_DEG the cameras were not held level, or the world is not Z up at all.
 MIN_TILT_DEG = 1.0
@@ -136,6 +143,15 @@ def _histogram_peaks(values: np.ndarray, weights: np.ndarray, min_weight: float)
         if all(abs(position - p) > 2 * PEAK_WINDOW for p, _ in peaks):
             peaks.append((position, weight))
     return peaks
+
+
+def _echo_of_a_floor(lower: tuple[float, float], upper: tuple[float, float]) -> bool:
+    """Whether the floor candidate `lower` (height, area) is an echo of the higher candidate `upper`,
+    both with little surface below them: `upper` is larger than furniture and ECHO_AREA_RATIO times
+    `lower`. A glossy floor's stereo matches the mirrored lights and walls below it; a lower floor under
+    a table top does not pass as an echo (the table top would have that floor below it and fail as a
+    floor, and is no room-sized surface)."""
+    return upper[0] > lower[0] and upper[1] >= max(FURNITURE_MAX_AREA, ECHO_AREA_RATIO * lower[1])
 
 
 def _floor_layers(heights: np.ndarray, areas: np.ndarray, min_area: float) -> list[tuple[float, float]]:
@@ -445,6 +461,7 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
                    and areas[(centroids[:, 2] < p[0] - BEHIND_MARGIN)
                              & (centroids[:, 2] >= p[0] - BELOW_FLOOR_DEPTH)].sum() <= MAX_BELOW_FLOOR_SHARE * p[1]
                    and areas[up & (centroids[:, 2] < p[0] - BEHIND_MARGIN)].sum() <= MAX_UP_BELOW_FLOOR_SHARE * p[1]]
+    floor_peaks = [p for p in floor_peaks if not any(_echo_of_a_floor(p, q) for q in floor_peaks)]
     if floor_peaks:
         z, weight = min(floor_peaks)
         offset = _refine_offset(centroids[up, 2], areas[up], z)

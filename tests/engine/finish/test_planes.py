@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from engine.finish.planes import WALL, face_geometry, find_structural_planes, seen_through_openings
+from engine.finish.planes import FLOOR, WALL, face_geometry, find_structural_planes, seen_through_openings
 from fixtures_box_room import ROOM, cameras, merge, rectangle, room_parts
 
 WINDOWS = ((0.3, 1.3), (1.7, 2.7))  # along y in the x = 4 wall
@@ -76,3 +76,34 @@ def test_a_wall_whose_door_lintel_stereo_missed_is_found_behind_what_the_door_sh
     planes, _ = find_structural_planes(vertices, faces, poses[:, :3, 3])
     offsets = sorted(round(-p.offset, 2) for p in planes if p.kind == WALL and p.normal[0] < -0.99)
     assert X in offsets, f"the wall with the door at x = 4 must be found, got walls at x = {offsets}"
+
+
+def _corridor_cameras(length: float) -> np.ndarray:
+    return np.array([[x, 0.8, 1.5] for x in np.arange(0.5, length, 0.5)])
+
+
+def test_a_glossy_floors_reflection_below_it_is_not_the_floor():
+    # A 12 x 1.6 m corridor floor at z = 0 whose far end stereo did not match, and 1.4 m^2 of the
+    # mirrored lights matched 26 cm below it there (the 3D Scanner App corridor's glossy floor).
+    missing = lambda s, t: 9.0 <= s < 10.2  # noqa: E731
+    vertices, faces = merge([
+        rectangle((0, 0, 0), (1, 0, 0), (0, 1, 0), 12.0, 1.6, (0, 0, 1), skip=missing),
+        rectangle((9.0, 0.2, -0.26), (1, 0, 0), (0, 1, 0), 1.2, 1.2, (0, 0, 1)),
+        rectangle((0, 0, 0), (1, 0, 0), (0, 0, 1), 12.0, 2.5, (0, 1, 0)),
+        rectangle((0, 1.6, 0), (1, 0, 0), (0, 0, 1), 12.0, 2.5, (0, -1, 0)),
+    ])
+    planes, _ = find_structural_planes(vertices, faces, _corridor_cameras(12.0))
+    floor = next(p for p in planes if p.kind == FLOOR)
+    assert abs(floor.offset) < 0.03
+
+
+def test_a_table_over_a_floor_barely_seen_is_not_the_floor():
+    # The kitchen of issue 43: the table top (1.5 m^2 at 0.75 m) fills the photos, the floor shows in
+    # 0.5 m^2 beside it; both have little below them, but the table is furniture-sized.
+    vertices, faces = merge([
+        rectangle((0, 0, 0.75), (1, 0, 0), (0, 1, 0), 1.5, 1.0, (0, 0, 1)),
+        rectangle((1.8, 0, 0), (1, 0, 0), (0, 1, 0), 0.5, 1.0, (0, 0, 1)),
+    ])
+    planes, _ = find_structural_planes(vertices, faces, np.array([[0.7, -1.0, 1.6], [1.5, -1.2, 1.5]]))
+    floor = next(p for p in planes if p.kind == FLOOR)
+    assert abs(floor.offset) < 0.03
