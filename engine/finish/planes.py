@@ -64,11 +64,11 @@ BELOW_FLOOR_DEPTH = 0.7  # m
 # for the surface below it. Table tops stand 40 cm and more above the floor.
 FLOOR_LAYER = 0.2  # m
 MAX_UP_BELOW_FLOOR_SHARE = 0.5  # up-facing surface below a floor (a lower floor: the candidate is a table top)
-# A floor candidate under a room-sized one (over FURNITURE_MAX_AREA m^2) that has ECHO_AREA_RATIO times
-# its area, both with little below them, is that floor's reflection: the 3D Scanner App corridor's glossy
-# floor gave stereo 2.5 m^2 of surface 26 cm below its 64 m^2 floor (the far leg, where the floor itself
-# was hardly matched), which was then taken as the floor and the whole floor laid 26 cm low.
-ECHO_AREA_RATIO = 10.0
+# A floor candidate under a room-sized one (over FURNITURE_MAX_AREA m^2) with ECHO_AREA_RATIO times its
+# area, both with little below them, is that floor's echo, not the floor: the 3D Scanner App corridor's
+# glossy floor gave stereo 2.5 m^2 of mirrored lights 26 cm below its 64 m^2 floor in one run and
+# 8.2 m^2 14 cm below its 58 m^2 in another, each then taken as the floor and the whole floor laid low.
+ECHO_AREA_RATIO = 2.0
 FURNITURE_MAX_AREA = 6.0  # m^2: a large dining table is 2-3 m^2
 # The room's up from the cameras' horizon (`room_up`): considered from MIN_TILT_DEG off world Z; beyond
 # MAX_TILT_DEG the cameras were not held level, or the world is not Z up at all.
@@ -147,8 +147,8 @@ def _histogram_peaks(values: np.ndarray, weights: np.ndarray, min_weight: float)
 
 def _echo_of_a_floor(lower: tuple[float, float], upper: tuple[float, float]) -> bool:
     """Whether the floor candidate `lower` (height, area) is an echo of the higher candidate `upper`,
-    both with little surface below them: `upper` is larger than furniture and ECHO_AREA_RATIO times
-    `lower`. A glossy floor's stereo matches the mirrored lights and walls below it; a lower floor under
+    both with little surface below them: `upper` is larger than furniture and has ECHO_AREA_RATIO
+    times `lower`'s area. A glossy floor's stereo matches the mirrored lights and walls below it; a lower floor under
     a table top does not pass as an echo (the table top would have that floor below it and fail as a
     floor, and is no room-sized surface)."""
     return upper[0] > lower[0] and upper[1] >= max(FURNITURE_MAX_AREA, ECHO_AREA_RATIO * lower[1])
