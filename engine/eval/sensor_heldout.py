@@ -143,7 +143,8 @@ def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, 
             "poses_found": poses_found, "settings": settings.to_dict(), "keep_poses": keep_poses,
             "poses_refined": prepared.refinement is not None, "frames_in": len(kept.frames), "held_out": len(rows),
             "faces": int(len(mesh.faces)), "seconds": round(seconds, 1), "mean": mean, "frames": rows,
-            "stereo": result.stats.get("stereo", {}), "warnings": list(result.warnings)}
+            "stereo": result.stats.get("stereo", {}), "finish": result.stats.get("finish", {}),
+            "warnings": list(result.warnings)}
 
 
 def format_rows(results: list[dict]) -> str:

@@ -81,3 +81,14 @@ def test_all_photos_refuses_to_score_the_sensor_depth_against_itself(tmp_path, c
     folder = write_export(tmp_path / "export", walk(6))
     assert main(["eval-sensor", str(folder), "--all-photos", "--variant", "sensor", "--quiet"]) != 0
     assert "--all-photos: the sensor depth would be scored against itself" in capsys.readouterr().err
+
+
+def test_a_variants_report_keeps_the_finishings_planes_and_the_gap_coverage(export):
+    from engine.eval.sensor_heldout import evaluate_variant
+    from engine.recon.settings import ReconSettings
+
+    kept, held = split_capture(export, 2)
+    result = evaluate_variant(kept, held, ReconSettings(), keep_poses=True)
+    assert result["sensor_depth"] and result["held_out"] == len(held)
+    assert result["finish"]["mode"] == ReconSettings().finish and "planes" in result["finish"]
+    assert 0.0 <= result["mean"]["gap_rendered"] <= 1.0 and result["mean"]["gap_share"] == pytest.approx(0.5)
