@@ -11,7 +11,7 @@ from fixtures_capture import look_yaw_pitch as look
 from engine.capture.model import Capture, Frame
 from engine.errors import PoseError
 from engine.poses.align import Similarity, pose_errors, rotation_angle_deg
-from engine.poses.gravity import KnownDistance, align_gravity_and_scale, mean_up_direction, rotation_taking
+from engine.poses.gravity import KnownDistance, align_gravity_and_scale, bent_walk_warning, mean_up_direction, rotation_taking
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 
@@ -143,3 +143,37 @@ def test_bad_known_distance_names_the_frame():
                                 points=points)
     with pytest.raises(PoseError, match="positive"):
         align_gravity_and_scale(capture_of(poses), camera_height=-1.0)
+
+
+def test_a_walk_whose_stretches_stand_metres_apart_in_height_is_called_bent():
+    names = [f"frame_{i:05d}" for i in range(60)]
+    rng = np.random.default_rng(3)
+    level = 1.5 + 0.03 * rng.standard_normal(60)  # a hand-held walk: a few cm up and down
+    assert bent_walk_warning(level, names) is None
+    crouching = level.copy()
+    crouching[20:35] -= 0.6  # a stretch filmed crouching still passes
+    assert bent_walk_warning(crouching, names) is None
+    bent = level.copy()
+    bent[30:] += np.linspace(0.0, 3.0, 30)  # the model bends at photo 30 and climbs 3 m
+    message = bent_walk_warning(bent, names)
+    assert message is not None and "probably bent" in message
+    assert "frame_00000" in message and "frame_00045..frame_00059" in message
+    assert bent_walk_warning(bent[:20], names[:20]) is None  # too few photos for two stretches
+
+
+def test_the_bent_walk_check_runs_only_over_a_floor_that_was_found():
+    # The same 3 m climb through the alignment: over a floor plane it is reported, without one (an
+    # object photographed from all heights, scale from the camera-height guess) it is not.
+    from engine.poses.gravity import _finish
+
+    poses = []
+    for i in range(60):
+        pose = np.eye(4)
+        pose[:3, 3] = (0.3 * i, 0.0, 1.5 + (0.1 * (i - 30) if i >= 30 else 0.0))
+        poses.append(pose)
+    capture = Capture(frames=[Frame(Path(f"frame_{i:05d}.jpg"), 640, 480, None, p) for i, p in enumerate(poses)],
+                      root=Path("."), format="images")
+    over_floor = _finish(capture, Similarity.identity(), None, "camera height", "", [], None, "plane", 1.5)
+    assert any("probably bent" in w for w in over_floor.warnings)
+    no_floor = _finish(capture, Similarity.identity(), None, "camera height", "", [], None, "lowest points", 1.5)
+    assert not any("probably bent" in w for w in no_floor.warnings)
