@@ -148,9 +148,9 @@ def _histogram_peaks(values: np.ndarray, weights: np.ndarray, min_weight: float)
 def _echo_of_a_floor(lower: tuple[float, float], upper: tuple[float, float]) -> bool:
     """Whether the floor candidate `lower` (height, area) is an echo of the higher candidate `upper`,
     both with little surface below them: `upper` is larger than furniture and has ECHO_AREA_RATIO
-    times `lower`'s area. A glossy floor's stereo matches the mirrored lights and walls below it; a lower floor under
-    a table top does not pass as an echo (the table top would have that floor below it and fail as a
-    floor, and is no room-sized surface)."""
+    times `lower`'s area. A glossy floor's stereo matches the mirrored lights and walls below it; a
+    lower floor under a table top is no echo (the table top would have that floor below it and fail
+    as a floor, and is no room-sized surface)."""
     return upper[0] > lower[0] and upper[1] >= max(FURNITURE_MAX_AREA, ECHO_AREA_RATIO * lower[1])
 
 

@@ -278,12 +278,11 @@ def bent_walk_warning(heights: np.ndarray, names: list[str]) -> Optional[str]:
     """A warning when the camera heights (N,) of a capture's posed photos (in capture order, named
     `names`) differ between stretches of the walk by more than BENT_WALK_HEIGHT_M; None otherwise or
     when there are too few photos for two stretches."""
-    n = BENT_WALK_STRETCH
+    n, step = BENT_WALK_STRETCH, max(1, BENT_WALK_STRETCH // 3)
     if len(heights) < 2 * n:
         return None
-    starts = range(0, len(heights) - n + 1, max(1, n // 3))
-    medians = np.array([np.median(heights[i:i + n]) for i in starts])
-    low, high = int(np.argmin(medians)) * max(1, n // 3), int(np.argmax(medians)) * max(1, n // 3)
+    medians = np.array([np.median(heights[i:i + n]) for i in range(0, len(heights) - n + 1, step)])
+    low, high = int(np.argmin(medians)) * step, int(np.argmax(medians)) * step
     spread = float(medians.max() - medians.min())
     if spread <= BENT_WALK_HEIGHT_M:
         return None
