@@ -149,7 +149,7 @@ def score_heldout(cached: Path, modes: list[str], save: Path | None) -> None:
         rows = [r for frame, pose in record["held"] if (r := compare_to_sensor(result.mesh, frame, pose)) is not None]
         mean = mean_of_rows(rows)
         print(f"{mode:<8} within 5 cm {mean['within_5cm']:.3f}  rendered {mean['rendered']:.3f}  "
-              f"median {100 * mean['median_error_m']:.1f} cm  gaps filled {mean['gap_rendered']:.3f}  "
+              f"median {100 * mean['median_error_m']:.1f} cm  normals {mean['normals_30deg']:.3f}  gaps filled {mean['gap_rendered']:.3f}  "
               f"faces {len(result.mesh.faces)}")
         if save is not None:
             save.mkdir(parents=True, exist_ok=True)

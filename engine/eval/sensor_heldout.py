@@ -11,6 +11,9 @@ then averaged:
   pixel where the mesh has no surface counts as a miss);
 - `rendered`: share of the confident pixels where the mesh has a surface at all;
 - `median_error_m`: median |rendered - LiDAR| where both exist;
+- `normals_30deg`: share of the confident pixels where the mesh has a surface whose normal (from the
+  rendered depth) lies within 30 deg of the LiDAR's (from its depth; the pixel and its four neighbours
+  measured); a crumpled wall at the right depth scores low here (random orientations: ~13 %);
 - `gap_rendered`: share of the frame's pixels where the sensor measured nothing the reconstruction
   takes (no return, or ARKit confidence low: glass, black, the far end of a corridor; `gap_share` of
   the frame) where the mesh has a surface all the same: what the walk's other photos filled in. No
@@ -46,6 +49,7 @@ from ..capture.model import Capture, Frame
 from ..capture.sensor_depth import HIGH_CONFIDENCE, read_sensor_depth, sensor_measured
 from ..errors import VortxError
 from ..geometry.cameras import scale_intrinsics
+from ..geometry.depth_normals import depth_normals
 from ..geometry.depth_render import render_depth
 from ..jobs import TqdmProgress
 from ..mesh_io import Mesh
@@ -57,6 +61,7 @@ from .against_truth import compare_poses
 
 MAX_TRUTH_DEPTH_M = 4.5  # a phone LiDAR's reliable range; beyond it the sensor is no truth
 AGREEMENT_M = 0.05
+NORMAL_AGREEMENT_DEG = 30.0
 
 
 def split_capture(capture: Capture, every: int) -> tuple[Capture, list[Frame]]:
@@ -84,10 +89,15 @@ def compare_to_sensor(mesh: Mesh, frame: Frame, pose: np.ndarray) -> Optional[di
     hit = np.isfinite(rendered) & confident
     error = np.abs(rendered - truth)
     gap = ~sensor_measured(truth, confidence)
+    true_normals, has_true_normal = depth_normals(np.where(confident, truth, 0.0), K)
+    mesh_normals, has_mesh_normal = depth_normals(np.where(np.isfinite(rendered), rendered, 0.0), K)
+    agree = np.abs(np.sum(true_normals * mesh_normals, axis=-1)) >= np.cos(np.radians(NORMAL_AGREEMENT_DEG))
+    judged = has_true_normal & confident
     return {
         "within_5cm": float((hit & (error < AGREEMENT_M)).sum() / confident.sum()),
         "rendered": float(hit.sum() / confident.sum()),
         "median_error_m": float(np.median(error[hit])) if hit.any() else float("nan"),
+        "normals_30deg": float((judged & has_mesh_normal & agree).sum() / judged.sum()) if judged.any() else float("nan"),
         "pixels": int(confident.sum()),
         "gap_share": float(gap.mean()),
         "gap_rendered": float((np.isfinite(rendered) & gap).sum() / gap.sum()) if gap.any() else float("nan"),
@@ -96,7 +106,7 @@ def compare_to_sensor(mesh: Mesh, frame: Frame, pose: np.ndarray) -> Optional[di
 
 def mean_of_rows(rows: list[dict[str, float]]) -> dict[str, float]:
     """The held-out frames' mean of each `compare_to_sensor` score (a frame without a gap has none)."""
-    keys = ("within_5cm", "rendered", "median_error_m", "gap_share", "gap_rendered")
+    keys = ("within_5cm", "rendered", "median_error_m", "normals_30deg", "gap_share", "gap_rendered")
     return {key: float(np.nanmean([r[key] for r in rows])) for key in keys}
 
 
@@ -148,13 +158,13 @@ def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, 
 
 
 def format_rows(results: list[dict]) -> str:
-    lines = [f"{'variant':<22}{'within 5 cm':>12}{'rendered':>10}{'median err':>12}{'gaps filled':>13}{'faces':>9}"
-             f"{'time':>8}"]
+    lines = [f"{'variant':<22}{'within 5 cm':>12}{'rendered':>10}{'median err':>12}{'normals':>9}{'gaps filled':>13}"
+             f"{'faces':>9}{'time':>8}"]
     for r in results:
         m = r["mean"]
         name = "photos alone (SfM)" if r.get("photos_only") else "sensor depth" if r["sensor_depth"] else "stereo alone"
         lines.append(f"{name:<22}{m['within_5cm']:>12.3f}{m['rendered']:>10.3f}{100 * m['median_error_m']:>10.1f}cm"
-                     f"{m['gap_rendered']:>13.3f}{r['faces']:>9}{r['seconds']:>7.0f}s")
+                     f"{m['normals_30deg']:>9.3f}{m['gap_rendered']:>13.3f}{r['faces']:>9}{r['seconds']:>7.0f}s")
     if results:
         lines.append(f"gaps filled: of the held-out pixels where the sensor measured nothing "
                      f"({results[0]['mean']['gap_share']:.0%} of them), the share the mesh covers")

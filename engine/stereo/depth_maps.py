@@ -23,6 +23,7 @@ from ..capture.images import load_resized, resized_size
 from .depth_filters import median_depth, remove_speckles
 from .options import MATCHER_PATCHMATCH, StereoOptions
 from .patchmatch_views import PatchMatchSchedule, PlaneMap, patchmatch_views
+from .plane_smoothing import smooth_along_planes
 from .source_views import scene_points, select_sources, select_sources_by_triangulation
 from .sweep import sweep_depth
 from .sparse_seed import sparse_seed_depth
@@ -301,6 +302,8 @@ def _patchmatch_maps(
     for m in maps:
         speckles = remove_speckles(m.depth)
         m.depth[speckles], m.confidence[speckles] = 0.0, 0.0
+        if options.plane_smoothing:
+            m.depth = smooth_along_planes(m.depth, m.normal, m.K)
     stages["depth filter"] = time.perf_counter() - started
     return maps
 

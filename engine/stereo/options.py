@@ -61,6 +61,9 @@ class StereoOptions:
     # for 5 px triangles and the pixels left empty are seldom under one (docs/experiments.md, "ACMP
     # planar prior (issue 34)").
     planar_prior: bool = False
+    # Each PatchMatch depth smoothed along its neighbours' planes where they agree within 5 % (plane_smoothing.py):
+    # SUN3D's depth-map normals within 30 deg 0.34 -> 0.48 (docs/experiments.md, "Depth maps smoothed along their planes").
+    plane_smoothing: bool = True
     # A phone's depth sensor (Frame.sensor_depth, LiDAR) gives the maps of the keyframes that have it,
     # in place of stereo (sensor_maps.py); captures without sensor depth are unaffected.
     sensor_depth: bool = True
@@ -98,5 +101,7 @@ class StereoOptions:
             raise VortxError(f"PatchMatch sparse seed must be true or false, got {self.sparse_seed!r}")
         if not isinstance(self.planar_prior, bool):
             raise VortxError(f"PatchMatch planar prior must be true or false, got {self.planar_prior!r}")
+        if not isinstance(self.plane_smoothing, bool):
+            raise VortxError(f"PatchMatch plane smoothing must be true or false, got {self.plane_smoothing!r}")
         if self.consistency_views < 0:
             raise VortxError(f"stereo consistency views cannot be negative, got {self.consistency_views}")

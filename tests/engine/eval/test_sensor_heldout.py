@@ -92,3 +92,16 @@ def test_a_variants_report_keeps_the_finishings_planes_and_the_gap_coverage(expo
     assert result["sensor_depth"] and result["held_out"] == len(held)
     assert result["finish"]["mode"] == ReconSettings().finish and "planes" in result["finish"]
     assert 0.0 <= result["mean"]["gap_rendered"] <= 1.0 and result["mean"]["gap_share"] == pytest.approx(0.5)
+
+
+def test_normals_agree_for_a_wall_facing_as_the_lidar_saw_it_not_for_one_turned_45_deg(export):
+    frame = export.frames[3]  # its LiDAR: a wall 1.3 m ahead, facing the camera
+    facing = compare_to_sensor(wall_ahead(frame.pose, 1.3), frame, frame.pose)
+    assert facing["normals_30deg"] == pytest.approx(1.0)
+    # The same wall turned 45 deg about the camera's vertical axis through the point 1.3 m ahead.
+    wall = wall_ahead(frame.pose, 1.3)
+    in_camera = (wall.vertices - frame.pose[:3, 3]) @ frame.pose[:3, :3]
+    in_camera[:, 2] = 1.3 + in_camera[:, 0]
+    turned = Mesh((in_camera @ frame.pose[:3, :3].T + frame.pose[:3, 3]).astype(np.float32), wall.faces)
+    row = compare_to_sensor(turned, frame, frame.pose)
+    assert row["rendered"] > 0.9 and row["normals_30deg"] == 0.0
