@@ -117,6 +117,8 @@ class PoseCheck:
     message: str  # the warning when poses_off; else why nothing could be said, or "" when they fit
     # The check's features, when it ran with a work_dir that outlives it: a refinement reuses them.
     features: Optional[SharedFeatures] = None
+    # (N, 3) float64 the points triangulated with the given poses, in the capture's world (None: not kept)
+    triangulated: Optional[np.ndarray] = None
 
     def summary(self) -> dict:
         """JSON-ready: the reconstruction sidecar's and the batch report's pose check."""
@@ -174,10 +176,10 @@ def check_given_poses(
                    f"triangulated with them from {len(frames)} photos; if the result looks doubled or blurred, "
                    f"{REFINE_SUGGESTION}")
         return PoseCheck(None if error is None else float(error), int(len(xyz)), len(frames), int(side), False, message,
-                         features)
+                         features, xyz)
     if error > MAX_GIVEN_POSE_ERROR_PX:
         message = (f"the given poses look off: points triangulated with them reproject {error:.2f} px from where the "
                    f"photos show them (mean over {len(xyz)} points at {side} px; poses that fit give under "
                    f"{MAX_GIVEN_POSE_ERROR_PX:g} px), so surfaces will come out doubled or blurred; {REFINE_SUGGESTION}")
-        return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), True, message, features)
-    return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), False, "", features)
+        return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), True, message, features, xyz)
+    return PoseCheck(float(error), int(len(xyz)), len(frames), int(side), False, "", features, xyz)

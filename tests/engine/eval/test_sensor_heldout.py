@@ -10,7 +10,7 @@ from fixtures_phone import walk, write_export
 
 from engine.capture import load_capture
 from engine.errors import VortxError
-from engine.eval.sensor_heldout import compare_to_sensor, photos_alone, split_capture
+from engine.eval.sensor_heldout import compare_to_sensor, photo_depth_ratio, photos_alone, split_capture
 from engine.mesh_io import Mesh
 
 
@@ -105,3 +105,23 @@ def test_normals_agree_for_a_wall_facing_as_the_lidar_saw_it_not_for_one_turned_
     turned = Mesh((in_camera @ frame.pose[:3, :3].T + frame.pose[:3, 3]).astype(np.float32), wall.faces)
     row = compare_to_sensor(turned, frame, frame.pose)
     assert row["rendered"] > 0.9 and row["normals_30deg"] == 0.0
+
+
+def test_the_photos_geometry_against_the_lidar_is_the_median_depth_ratio_on_the_same_surface(export):
+    """Points 1 % nearer than the LiDAR's wall where it is confident give 0.99; points where it is not
+    confident, or on another surface (twice as far: behind the wall), do not count."""
+    from engine.capture.sensor_depth import read_sensor_depth
+    from engine.geometry.cameras import scale_intrinsics
+
+    frame = export.frames[3]
+    truth, _ = read_sensor_depth(frame.sensor_depth)  # 1.3 m, confident on the left half
+    h, w = truth.shape
+    K = scale_intrinsics(frame.K, (frame.width, frame.height), (w, h))
+    v, u = np.mgrid[0:h, 0:w] + 0.5
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones((h, w))], -1).reshape(-1, 3)
+    left = (u < w / 2).reshape(-1)
+    depth = np.where(left, 0.99 * 1.3, 0.5 * 1.3)  # the right half's LiDAR is not confident
+    in_camera = np.concatenate([rays * depth[:, None], rays[left][::4] * 2.6])  # and some behind the wall
+    world = in_camera @ frame.pose[:3, :3].T + frame.pose[:3, 3]
+    assert photo_depth_ratio(world, [(frame, frame.pose)]) == pytest.approx(0.99, abs=1e-6)
+    assert photo_depth_ratio(world[:20], [(frame, frame.pose)]) is None  # too few points to say
