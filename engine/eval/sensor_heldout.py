@@ -26,7 +26,7 @@ apply to both.
 Where the pose check triangulated points with the poses the reconstruction uses (the refinement ran),
 `photo_depth_ratio` is the median ratio of their depth to the held-out LiDAR's at the pixels they fall on:
 how far the photos' own geometry (poses and intrinsics) and the truth disagree in scale before any
-surface is built. On the 3D Scanner App corridor it is 0.983-0.988: at 3 m, 3.6-5.2 cm of the 5 cm.
+surface is built. On the 3D Scanner App corridor it is 0.983-0.993 (by which photos are checked): at 3 m, 2-5 cm of the 5 cm.
 
 `--photos-only` measures what a user with the photos alone gets: the kept photos lose their poses,
 intrinsics and depth, structure from motion poses them and finds up and scale as for any photo folder
