@@ -23,8 +23,8 @@ Both variants run by default (sensor depth on, then stereo alone), so each numbe
 baseline measured the same way; the reconstruction's own flags (`--finish`, `--max-room-size`, ...)
 apply to both.
 
-Where the pose check triangulated points with the poses the reconstruction uses (the refinement ran),
-`photo_depth_ratio` is the median ratio of their depth to the held-out LiDAR's at the pixels they fall on:
+Where points were triangulated with the poses the reconstruction uses (by the pose check, or by the
+refinement when it ran), `photo_depth_ratio` is the median ratio of their depth to the held-out LiDAR's at the pixels they fall on:
 how far the photos' own geometry (poses and intrinsics) and the truth disagree in scale before any
 surface is built. On the 3D Scanner App corridor it is 0.983-0.993 (by which photos are checked): at 3 m, 2-5 cm of the 5 cm.
 
@@ -82,18 +82,26 @@ def split_capture(capture: Capture, every: int) -> tuple[Capture, list[Frame]]:
     return capture.with_frames(kept), held
 
 
-def compare_to_sensor(mesh: Mesh, frame: Frame, pose: np.ndarray) -> Optional[dict[str, float]]:
-    """The mesh rendered from `frame` at `pose` (4, 4) against the frame's confident LiDAR depth, or
-    None when the frame has no confident pixel in range."""
-    assert frame.sensor_depth is not None and frame.K is not None
+def sensor_truth(frame: Frame) -> tuple[np.ndarray, Optional[np.ndarray], np.ndarray, np.ndarray]:
+    """A held-out frame's LiDAR as truth: depth (h, w) metres, confidence (h, w) or None, where it is
+    truth (h, w) bool (a return under MAX_TRUTH_DEPTH_M, confidence high when the app exports one), and K
+    (3, 3) at the depth map's size."""
     truth, confidence = read_sensor_depth(frame.sensor_depth)
     h, w = truth.shape
     confident = (truth > 0) & (truth < MAX_TRUTH_DEPTH_M)
     if confidence is not None:
         confident &= confidence >= HIGH_CONFIDENCE
+    return truth, confidence, confident, scale_intrinsics(frame.K, (frame.width, frame.height), (w, h))
+
+
+def compare_to_sensor(mesh: Mesh, frame: Frame, pose: np.ndarray) -> Optional[dict[str, float]]:
+    """The mesh rendered from `frame` at `pose` (4, 4) against the frame's confident LiDAR depth, or
+    None when the frame has no confident pixel in range."""
+    assert frame.sensor_depth is not None and frame.K is not None
+    truth, confidence, confident, K = sensor_truth(frame)
+    h, w = truth.shape
     if not confident.any():
         return None
-    K = scale_intrinsics(frame.K, (frame.width, frame.height), (w, h))
     rendered = render_depth(mesh.vertices, mesh.faces, K, pose, (w, h))
     hit = np.isfinite(rendered) & confident
     error = np.abs(rendered - truth)
@@ -119,17 +127,13 @@ def photo_depth_ratio(points: np.ndarray, views: list[tuple[Frame, np.ndarray]])
     of each other; None with fewer than MIN_RATIO_POINTS such pairs."""
     ratios = []
     for frame, pose in views:
-        truth, confidence = read_sensor_depth(frame.sensor_depth)
+        truth, _, confident, K = sensor_truth(frame)
         h, w = truth.shape
-        K = scale_intrinsics(frame.K, (frame.width, frame.height), (w, h))
         u, v, z = project_points(points, K, pose)
         inside = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
         row, col = v[inside].astype(np.int64), u[inside].astype(np.int64)
-        lidar = truth[row, col]
-        confident = (lidar > 0) & (lidar < MAX_TRUTH_DEPTH_M)
-        if confidence is not None:
-            confident &= confidence[row, col] >= HIGH_CONFIDENCE
-        ratio = z[inside][confident] / lidar[confident]
+        measured = confident[row, col]
+        ratio = z[inside][measured] / truth[row, col][measured]
         ratios.append(ratio[(ratio > 1 / SAME_SURFACE_RATIO) & (ratio < SAME_SURFACE_RATIO)])
     ratios = np.concatenate(ratios) if ratios else np.zeros(0)
     return float(np.median(ratios)) if len(ratios) >= MIN_RATIO_POINTS else None
