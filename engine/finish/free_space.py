@@ -131,3 +131,41 @@ def mesh_depth_views(mesh: Mesh, Ks: np.ndarray, poses: np.ndarray, image_size: 
         views.append(PlainDepthView(depth, scale_intrinsics(np.asarray(K, np.float64), (w, h), (dw, dh)),
                                     np.asarray(pose, np.float64)))
     return views
+
+
+def surface_offsets(points: np.ndarray, normal: np.ndarray, offset: float, views: Sequence[DepthView],
+                    reach: float) -> np.ndarray:
+    """(N,) float: where the depth maps put the surface near each of `points` (N, 3) on the plane
+    n . x = offset (unit `normal` (3,)): the median, over the views whose surface along the ray lies
+    within `reach` m of the plane, of that surface's signed distance from the plane (positive on the
+    normal's side); NaN where fewer than two views say. The maps' median is steadier than the mesh they
+    make: stereo's crumple is their disagreement, a recess (a bookcase's shelves) their agreement."""
+    points = np.asarray(points, np.float64).reshape(-1, 3)
+    point_ids, distances = [], []
+    for view in views:
+        depth = np.asarray(view.depth)
+        h, w = depth.shape
+        ids, u, v, z = points_in_view(points, view.K, view.pose, (w, h))
+        d = depth[np.floor(v).astype(np.int64), np.floor(u).astype(np.int64)].astype(np.float64)
+        valid = (d > 0) & np.isfinite(d)
+        ids, z, d = ids[valid], z[valid], d[valid]
+        # The view's surface on the point's ray is at (d / z) of the way from the camera: its plane
+        # distance is (n . C - offset) (1 - d / z).
+        centre_distance = float(np.asarray(view.pose, np.float64)[:3, 3] @ normal - offset)
+        distance = centre_distance * (1.0 - d / z)
+        near = np.abs(distance) <= reach
+        point_ids.append(ids[near])
+        distances.append(distance[near])
+    median = np.full(len(points), np.nan)
+    if not point_ids:
+        return median
+    ids, distance = np.concatenate(point_ids), np.concatenate(distances)
+    order = np.lexsort((distance, ids))
+    ids, distance = ids[order], distance[order]
+    counts = np.bincount(ids, minlength=len(points))
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    said = counts >= 2
+    low = distance[starts[said] + (counts[said] - 1) // 2]
+    high = distance[starts[said] + counts[said] // 2]
+    median[said] = 0.5 * (low + high)
+    return median

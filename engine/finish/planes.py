@@ -121,15 +121,16 @@ def face_geometry(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, 
     return (a + b + c) / 3.0, 0.5 * length, normals
 
 
-def _histogram_peaks(values: np.ndarray, weights: np.ndarray, min_weight: float) -> list[tuple[float, float]]:
-    """Peaks of the weighted histogram of `values` (N,): [(position, weight within PEAK_WINDOW)], strongest
+def _histogram_peaks(values: np.ndarray, weights: np.ndarray, min_weight: float,
+                     window_m: float = PEAK_WINDOW) -> list[tuple[float, float]]:
+    """Peaks of the weighted histogram of `values` (N,): [(position, weight within `window_m`)], strongest
     first, each at least `min_weight` and 2 windows from any stronger one."""
     if len(values) == 0:
         return []
-    lo = float(values.min()) - 2 * PEAK_WINDOW
-    bins = int(np.ceil((float(values.max()) + 2 * PEAK_WINDOW - lo) / HISTOGRAM_BIN)) + 1
+    lo = float(values.min()) - 2 * window_m
+    bins = int(np.ceil((float(values.max()) + 2 * window_m - lo) / HISTOGRAM_BIN)) + 1
     hist = np.bincount(((values - lo) / HISTOGRAM_BIN).astype(np.int64), weights, minlength=bins)
-    half = int(round(PEAK_WINDOW / HISTOGRAM_BIN))
+    half = int(round(window_m / HISTOGRAM_BIN))
     window = np.convolve(hist, np.ones(2 * half + 1), mode="same")  # area within +-PEAK_WINDOW of each bin
     sharp = np.convolve(hist, [1.0, 2.0, 1.0], mode="same")  # where a peak is; `window`: how strong
     peaks: list[tuple[float, float]] = []
@@ -140,7 +141,7 @@ def _histogram_peaks(values: np.ndarray, weights: np.ndarray, min_weight: float)
         if weight < min_weight:
             continue
         position = lo + (index + 0.5) * HISTOGRAM_BIN
-        if all(abs(position - p) > 2 * PEAK_WINDOW for p, _ in peaks):
+        if all(abs(position - p) > 2 * window_m for p, _ in peaks):
             peaks.append((position, weight))
     return peaks
 
@@ -183,9 +184,9 @@ def _weighted_median(values: np.ndarray, weights: np.ndarray) -> float:
     return float(values[order][np.searchsorted(cumulative, 0.5 * cumulative[-1])])
 
 
-def _refine_offset(values: np.ndarray, weights: np.ndarray, around: float) -> float:
-    """The area-weighted median of `values` within PEAK_WINDOW of `around`: the plane's offset."""
-    near = np.abs(values - around) <= PEAK_WINDOW
+def _refine_offset(values: np.ndarray, weights: np.ndarray, around: float, window_m: float = PEAK_WINDOW) -> float:
+    """The area-weighted median of `values` within `window_m` of `around`: the plane's offset."""
+    near = np.abs(values - around) <= window_m
     if not near.any():
         return around
     return _weighted_median(values[near], weights[near])
