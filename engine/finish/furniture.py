@@ -9,8 +9,8 @@ walls are, in the room's levelled Manhattan frame, but patch by patch instead of
   histogram of the position of the faces turned that way (within FACING_DEG: crumpled stereo is)
   gives planes; the faces within WINDOW of a peak, rasterised on a PATCH_CELL grid in the plane,
   split into connected patches;
-- a patch is a furniture plane when it is big (MIN_PATCH_AREA of surface, MIN_PATCH_WIDTH across: a
-  strip is a frame or an edge), flat (its surface's robust spread about its fitted plane within
+- a patch is a furniture plane when it is furniture-sized (MIN_PATCH_AREA to MAX_PATCH_AREA of surface,
+  MIN_PATCH_WIDTH across: a strip is a frame or an edge), flat (its surface's robust spread about its fitted plane within
   MAX_SPREAD, and not curved: a quadratic explains at most MAX_CURVED_SHARE of that spread) and not a
   structural plane or the floor;
 - its grid (`grid.PlaneGrid`, cells of the voxel size, on the plane) covers its seen cells, plus the
@@ -32,7 +32,7 @@ from scipy import ndimage
 
 from .free_space import DepthView, surface_offsets, view_votes
 from .grid import PlaneGrid, flat_band, relief_cells
-from .planes import FLOOR, StructuralPlane, _directions, _histogram_peaks, _refine_offset, _weighted_median, rotation_to_z
+from .planes import FLOOR, FURNITURE_MAX_AREA, StructuralPlane, _directions, _histogram_peaks, _refine_offset, _weighted_median, rotation_to_z
 
 TOP, FRONT = "top", "front"  # plane kinds: facing up (tables, counters, shelves), facing sideways (fronts, partitions)
 FACING_DEG = 45.0  # a face turned within this of a patch's normal is its surface (crumpled stereo is)
@@ -40,6 +40,10 @@ WINDOW = 0.1  # m either side of a patch's plane: its surface (SUN3D's stereo sp
 PATCH_CELL = 0.1  # m: the grid candidate faces are split into connected patches on
 OCCUPIED_SHARE = 0.15  # of a PATCH_CELL's area covered by candidate faces: the cell is the patch's
 MIN_PATCH_AREA = 0.25  # m^2 of surface: a chair's back or seat is smaller, a cabinet front or a shelf is not
+# A patch bigger than furniture is a wall the structural planes did not take (the 3D Scanner App
+# corridor's inner walls: 12-24 m^2 patches); laid on one plane it loses the drift the walls' own grids
+# follow (that corridor's LiDAR run: within 5 cm 0.823 -> 0.804 with them).
+MAX_PATCH_AREA = FURNITURE_MAX_AREA
 MIN_PATCH_WIDTH = 0.25  # m across its narrower axis (RMS width): a door frame or a table's edge is narrower
 MAX_SPREAD = 0.05  # m: the robust spread of a patch's surface about its plane (a curved back is wider)
 # Of a patch's surface's variance about its plane, the share a quadratic over the plane explains: a
@@ -163,7 +167,7 @@ def find_furniture_planes(centroids: np.ndarray, areas: np.ndarray, normals: np.
             for label in range(1, count + 1):
                 members = near[labels == label]
                 area = float(areas[members].sum())
-                if area < MIN_PATCH_AREA or _rms_width(coords[labels == label], areas[members]) < MIN_PATCH_WIDTH:
+                if not MIN_PATCH_AREA <= area <= MAX_PATCH_AREA or _rms_width(coords[labels == label], areas[members]) < MIN_PATCH_WIDTH:
                     continue
                 normal, fitted, spread = _fit_plane(c[members], areas[members], direction)
                 if spread > MAX_SPREAD or _curved_share(c[members], areas[members], normal, fitted) > MAX_CURVED_SHARE:

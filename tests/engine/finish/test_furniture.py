@@ -174,3 +174,18 @@ def test_surface_offsets_are_where_the_maps_put_the_surface():
     assert surface_offsets(points, normal, 0.0, [view, view], 0.2) == pytest.approx(np.full(50, -0.05), abs=1e-5)
     assert np.isnan(surface_offsets(points, normal, 0.0, [view], 0.2)).all()
     assert np.isnan(surface_offsets(points, normal, 0.0, [view, view], 0.04)).all()
+
+
+def test_a_wall_sized_panel_is_no_furniture_plane():
+    """A free-standing 3.5 x 2 m panel (7 m^2: a wall the structural planes did not take) is left to
+    them: laid on one plane it would lose the drift a wall's own grid follows. A 1 x 1 m one is taken."""
+    rng = np.random.default_rng(4)
+    room_v, room_f = _crumpled(_room_without_cabinet(), rng, 0.01)
+    big = rectangle((0.25, 1.0, 0.0), (1, 0, 0), (0, 0, 1), 3.5, 2.0, (0, 1, 0))
+    small = rectangle((1.5, 2.2, 0.0), (1, 0, 0), (0, 0, 1), 1.0, 1.0, (0, -1, 0))
+    vertices, faces = merge([(room_v, room_f), big, small])
+    _, poses = cameras()
+    planes, info, centroids, areas, normals = _planes(vertices, faces, poses)
+    found = find_furniture_planes(centroids, areas, normals, np.array([0.0, 0.0, 1.0]), info["heading_deg"], planes)
+    assert not any(f.plane.normal[1] > 0.99 and abs(f.plane.offset - 1.0) < 0.05 for f in found)
+    assert any(f.plane.normal[1] < -0.99 and abs(f.plane.offset + 2.2) < 0.05 for f in found)
