@@ -44,7 +44,7 @@ from ..observation import ADDED  # vertex attribute: 1 on faces the finishing ad
 from .free_space import DepthView, Votes, view_votes
 from .furniture import WINDOW as FURNITURE_WINDOW
 from .furniture import find_furniture_planes, furniture_grid
-from .grid import PlaneGrid, flat_band, grid_mesh, local_shift, relief_cells
+from .grid import RELIEF_MIN_AREA, PlaneGrid, flat_band, grid_mesh, local_shift, stretches_of_area
 from .modes import FINISH_CLEAN, FINISH_MODES, FINISH_OFF, FINISH_ROOM
 from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_structural_planes, floor_up, room_up
 
@@ -177,7 +177,10 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
     # Surface near the plane but off it by more than its noise, over a patch, is relief (a door frame,
     # a recess, a skirting board): kept as it is, and the plane adds no cell over it. Scattered cells
     # off it are crumpled stereo, which the plane replaces.
-    grid.relief = relief_cells(shape, cell, i[near & ~on], j[near & ~on], i[on], j[on])
+    off_band = np.zeros(shape, bool)
+    off_band[i[near & ~on], j[near & ~on]] = True
+    off_band[i[on], j[on]] = False
+    grid.relief = stretches_of_area(off_band, cell, RELIEF_MIN_AREA)
     grid.observed &= ~grid.relief
     # Faces of the 4 cm marching cubes leave single empty cells between their centroids: close them.
     grid.observed = ndimage.binary_closing(grid.observed, structure=np.ones((3, 3), bool), border_value=0) | grid.observed
@@ -335,7 +338,8 @@ def _pieces_absorbed(mesh: Mesh, grids: Sequence[PlaneGrid], band: float) -> tup
     centroids, areas, _ = face_geometry(mesh.vertices, mesh.faces)
     near = np.zeros(len(centroids), bool)
     for grid in grids:
-        near |= (np.abs(grid.distance(centroids)) <= band) & grid.covers(centroids)
+        candidates = grid.within(centroids, band)
+        near[candidates] |= (np.abs(grid.distance(centroids[candidates])) <= band) & grid.covers(centroids[candidates])
     labels, sizes = face_pieces(mesh.faces, len(mesh.vertices))
     share = np.bincount(labels, areas * near, minlength=len(sizes)) / np.maximum(np.bincount(labels, areas, minlength=len(sizes)), 1e-12)
     drop_piece = share >= ABSORBED_SHARE
@@ -414,10 +418,15 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
         furniture_stats = []
         for patch in found:
             grid = furniture_grid(patch, centroids, cell, views, fill=True)
-            vertex_distance = grid.distance(vertices)[faces]
-            on = ((np.abs(vertex_distance) <= FURNITURE_WINDOW).all(axis=1) & grid.covers(centroids)
-                  & ~grid.in_relief(centroids) & (face_normals @ patch.plane.normal > FLATTEN_COS))
-            drop |= on
+            if not grid.keep.any():  # cut by its relief into stretches smaller than furniture
+                continue
+            # A face whose vertices all lie within the window has its centroid there too.
+            candidates = grid.within(centroids, FURNITURE_WINDOW)
+            candidates = candidates[face_normals[candidates] @ patch.plane.normal > FLATTEN_COS]
+            vertex_distance = grid.distance(vertices[faces[candidates]].reshape(-1, 3)).reshape(-1, 3)
+            on = ((np.abs(vertex_distance) <= FURNITURE_WINDOW).all(axis=1) & grid.covers(centroids[candidates])
+                  & ~grid.in_relief(centroids[candidates]))
+            drop[candidates[on]] = True
             grids.append(grid)
             furniture_stats.append({**patch.plane.to_dict(), "spread_m": round(patch.spread, 4),
                                     "observed": int(grid.observed.sum()), "added": int(grid.added.sum()),

@@ -31,7 +31,7 @@ import numpy as np
 from scipy import ndimage
 
 from .free_space import DepthView, surface_offsets, view_votes
-from .grid import PlaneGrid, flat_band, relief_cells
+from .grid import RELIEF_MIN_AREA, PlaneGrid, flat_band, stretches_of_area
 from .planes import FLOOR, FURNITURE_MAX_AREA, StructuralPlane, _directions, _histogram_peaks, _refine_offset, _weighted_median, rotation_to_z
 
 TOP, FRONT = "top", "front"  # plane kinds: facing up (tables, counters, shelves), facing sideways (fronts, partitions)
@@ -179,18 +179,13 @@ def find_furniture_planes(centroids: np.ndarray, areas: np.ndarray, normals: np.
     return found
 
 
-def _cells(shape: tuple[int, int], i: np.ndarray, j: np.ndarray) -> np.ndarray:
-    out = np.zeros(shape, bool)
-    out[i, j] = True
-    return out
-
-
-def furniture_grid(found: FurnitureCandidate, centroids: np.ndarray, cell: float, views: Sequence[DepthView], fill: bool) -> PlaneGrid:
+def furniture_grid(found: FurnitureCandidate, centroids: np.ndarray, cell: float, views: Sequence[DepthView],
+                   fill: bool) -> PlaneGrid:
     """The patch's cells (`grid.PlaneGrid` of `cell` m, no shift: the patch is its plane), from its faces
-    (centroids (F, 3) of the mesh's): observed where its surface lies within its band (`grid.flat_band`
-    of its spread); relief where its surface lies off the band over a patch (a bookcase's shelves behind
-    its front: kept as they are); kept, with `fill`, also the holes inside the observed outline that
-    some view frames and none saw through."""
+    (centroids (F, 3) of the mesh's): observed where they lie; relief where the depth maps' median
+    surface stands RELIEF_DEPTH or more off the plane over RELIEF_MIN_AREA (a bookcase's shelves behind
+    its frame: kept as they are); kept, with `fill`, also the holes inside the observed outline that
+    some view frames and none saw through; all of it only in stretches of MIN_PATCH_AREA or more."""
     plane = found.plane
     coords = plane.to_plane(centroids[found.faces])
     origin = coords.min(axis=0) - cell
@@ -198,16 +193,11 @@ def furniture_grid(found: FurnitureCandidate, centroids: np.ndarray, cell: float
     empty = np.zeros(shape, bool)
     grid = PlaneGrid(plane, origin, cell, empty.copy(), empty.copy(), empty.copy(), empty.copy(), np.zeros(shape),
                      empty.copy(), flat_band(plane.distance(centroids[found.faces]), WINDOW))
-    members = found.faces
-    distance = plane.distance(centroids[members])
     i, j, _ = grid.cells_of(coords)
-    on = np.abs(distance) <= grid.band
-    # Relief: where the depth maps agree the surface stands off the plane over a patch.
+    grid.observed[i, j] = True
     standing = surface_offsets(grid.centres(), plane.normal, plane.offset, views, 2 * WINDOW).reshape(shape)
     deep = np.abs(np.nan_to_num(standing)) > RELIEF_DEPTH
-    grid.relief = relief_cells(shape, cell, *np.nonzero(deep), np.zeros(0, np.int64), np.zeros(0, np.int64))
-    grid.relief &= ndimage.binary_dilation(_cells(shape, i, j), iterations=1)
-    grid.observed[i[on], j[on]] = True
+    grid.relief = stretches_of_area(deep, cell, RELIEF_MIN_AREA) & ndimage.binary_dilation(grid.observed, iterations=1)
     grid.observed = ndimage.binary_closing(grid.observed, structure=np.ones((3, 3), bool), border_value=0) | grid.observed
     grid.observed &= ~grid.relief
     votes = view_votes(grid.centres(), views, plane_normal=plane.normal)
@@ -217,4 +207,8 @@ def furniture_grid(found: FurnitureCandidate, centroids: np.ndarray, cell: float
     if fill:
         inside = ndimage.binary_fill_holes(grid.observed | grid.relief) & ~grid.relief
         grid.keep |= inside & ((votes.in_view >= 1) & ~votes.contradicted()).reshape(shape)
+    # A stretch smaller than furniture (the patch cut up by its relief) would be a floater of its own:
+    # the surface there stays as it was.
+    grid.keep &= stretches_of_area(grid.keep, cell, MIN_PATCH_AREA)
+    grid.observed &= grid.keep
     return grid

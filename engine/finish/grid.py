@@ -61,6 +61,12 @@ class PlaneGrid:
         i, j, _ = self.cells_of(self.plane.to_plane(points))
         return self.plane.distance(points) - self.shift[i, j]
 
+    def within(self, points: np.ndarray, reach: float) -> np.ndarray:
+        """(M,) int64 indices of the world points (N, 3) that may lie within `reach` m of the surface where
+        it stands: those within reach + the largest shift of the plane (one dot product each, so the
+        cell lookups of `distance` and `covers` run on these only)."""
+        return np.flatnonzero(np.abs(self.plane.distance(points)) <= reach + float(np.abs(self.shift).max(initial=0.0)))
+
     def blocks(self, points: np.ndarray) -> np.ndarray:
         """(N,) bool: world points (N, 3) project into the plane's extent away from its openings (cells
         a view saw through, grown by a cell): there the plane hides whatever lies behind it."""
@@ -122,20 +128,13 @@ def flat_band(residual: np.ndarray, tolerance: float) -> float:
     return float(np.clip(FLAT_BAND_SIGMAS * spread, MIN_FLAT_BAND, tolerance))
 
 
-def relief_cells(shape: tuple[int, int], cell: float, off_i: np.ndarray, off_j: np.ndarray, on_i: np.ndarray,
-                 on_j: np.ndarray) -> np.ndarray:
-    """(A, B) bool of a grid of `shape` and `cell` m: relief, the patches of RELIEF_MIN_AREA or more of
-    cells with surface near the plane but off its band (at cells (off_i, off_j) (N,)) and none within it
-    (cells (on_i, on_j) (M,)): a door frame, a recess, a shelf's books, kept as they are. Scattered such
-    cells are crumpled stereo."""
-    off_band = np.zeros(shape, bool)
-    off_band[off_i, off_j] = True
-    off_band[on_i, on_j] = False
-    labels, count = ndimage.label(off_band, structure=np.ones((3, 3), bool))
+def stretches_of_area(mask: np.ndarray, cell: float, min_area: float) -> np.ndarray:
+    """(A, B) bool: the cells of `mask` (A, B) bool (cells of `cell` m) in 8-connected stretches of at
+    least `min_area` m^2."""
+    labels, count = ndimage.label(mask, structure=np.ones((3, 3), bool))
     if not count:
-        return np.zeros(shape, bool)
-    sizes = np.bincount(labels.ravel(), minlength=count + 1)
-    big = sizes >= RELIEF_MIN_AREA / cell ** 2
+        return np.zeros(mask.shape, bool)
+    big = np.bincount(labels.ravel(), minlength=count + 1) * cell ** 2 >= min_area
     big[0] = False
     return big[labels]
 
