@@ -18,6 +18,10 @@ Choices (measured in platform-notes section 1 and on the fox photos):
   loader found one. The reconstruction needs a pinhole camera: it gets (f, f, cx, cy), and the
   radial term is either negligible (it moves the image corners by less than 0.5 % of the image
   size: dropped) or the photos are undistorted into the capture's cache (`undistort=True`).
+- A model that bends (a stretch of photos whose own vertical lines lean from the rest: `bends.py`)
+  is cut there: the longest straight stretch of the walk is kept, the rest left unposed, and the
+  report says which photos and why. A walk's photo posed with none of its neighbours (a loop match
+  to a look-alike place) is left out too.
 - The whole SfM runs in a child process (`sfm_worker.py`): a COLMAP CHECK failure aborts the
   process it runs in, and that must not be Blender.
 """
@@ -36,6 +40,7 @@ from ..capture.naming import name_list
 from ..capture.undistort import undistort_images
 from ..errors import PoseError
 from ..jobs import CancelToken, ProgressCallback, check
+from .bends import find_bend
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .gravity import Alignment, KnownDistance, align_gravity_and_scale
 from .process import run_pose_job
@@ -286,6 +291,23 @@ def _pose_result(
             warnings.append(f"the lens distorts the image corners by about {shift_px:.1f} px and undistort is "
                             "off: the reconstruction treats the photos as pinhole, so walls near the image "
                             "edges will bend")
+    leave_out = np.zeros(len(frames), bool)
+    if matcher == "sequential":
+        lone = lone_photos([i for i, f in enumerate(frames) if f.pose is not None], options.sequential_overlap)
+        if lone:
+            leave_out[lone] = True
+            warnings.append(f"{', '.join(frames[i].name for i in lone)}: placed only through photos far along the walk, "
+                            f"none of the {options.sequential_overlap} before or after it, so probably at a look-alike "
+                            "place; left out")
+    kept = [i for i, f in enumerate(frames) if f.pose is not None and not leave_out[i]]
+    bend = find_bend([frames[i] for i in kept])
+    if bend is not None:
+        leave_out[[kept[k] for k in bend.cut]] = True
+        warnings.append(bend.describe([frames[i].name for i in kept]))
+    if leave_out.any():
+        frames, xyz, rgb = _leave_out(frames, leave_out, result["tracks"], xyz, rgb)
+        registered = [f.name for f in frames if f.pose is not None]
+        unregistered = [f.name for f in frames if f.pose is None]
     posed = capture.with_frames(frames, metric=False)
 
     alignment = None
@@ -314,6 +336,29 @@ def _pose_result(
         warnings=warnings,
         notes=notes,
     )
+
+
+def lone_photos(posed: list[int], overlap: int) -> list[int]:
+    """Of the posed photos (capture indices, ascending) of a walk matched sequentially, those with no
+    other posed photo within `overlap` of them in capture order: they were placed only through a loop
+    match, which in a look-alike corridor is another place (the 3D Scanner App corridor: a photo of
+    one leg posed 17 m away in the other)."""
+    index = np.asarray(posed)
+    gaps = np.diff(index)
+    before = np.r_[np.inf, gaps]
+    after = np.r_[gaps, np.inf]
+    return index[(before > overlap) & (after > overlap)].tolist() if len(index) > 1 else []
+
+
+def _leave_out(frames: list[Frame], leave: np.ndarray, tracks: dict, xyz: np.ndarray,
+               rgb: np.ndarray) -> tuple[list[Frame], np.ndarray, np.ndarray]:
+    """`frames` with those where `leave` (len(frames),) bool unposed, and the points (N, 3) and colours
+    (N, 3) without those at least half of whose observations (`tracks`: obs_image frame index,
+    obs_point row) are in the photos left out: those photos' poses placed them."""
+    seen_left = np.bincount(tracks["obs_point"], weights=leave[tracks["obs_image"]], minlength=len(xyz))
+    seen = np.bincount(tracks["obs_point"], minlength=len(xyz))
+    keep = seen_left * 2 < np.maximum(seen, 1)
+    return [replace(f, pose=None) if leave[i] else f for i, f in enumerate(frames)], xyz[keep], rgb[keep]
 
 
 def _undistorted(

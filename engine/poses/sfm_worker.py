@@ -339,14 +339,17 @@ def run_sfm(job: dict) -> None:
 
     stats["low_contrast"] = low_contrast
     stats["mapping_attempts"] = attempts
-    _write_result(work, models, sizes, sx, sy, stats, timings)
+    _write_result(work, models, sizes, sx, sy, stats, timings, {name: i for i, name in enumerate(names)})
 
 
-def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: float, stats: dict, timings: dict) -> None:
+def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: float, stats: dict, timings: dict,
+                  index_of: dict[str, int]) -> None:
     """result.json: {"source_size": [w, h], "scaled_size": [w, h], "model_sizes": [...] (largest first),
     "camera": {"model", "params", "width", "height"} | null, "images": [{"name", "cam_from_world" 3x4}],
     "mean_reprojection_error", "num_points3D", "database": stats, "timings"};
-    points.npz: xyz (N, 3) float64, rgb (N, 3) uint8, error (N,) float64 of the largest model."""
+    points.npz: xyz (N, 3) float64, rgb (N, 3) uint8, error (N,) float64 of the largest model, and its
+    observations (obs_image: job image index (`index_of` a COLMAP name), obs_point: row in xyz, obs_uv:
+    the keypoint in the downscaled photo), so the parent can drop the points of photos it leaves out."""
     ordered = sorted(models.values(), key=lambda r: r.num_reg_images(), reverse=True)
     result: dict = {
         "source_size": [sizes[0]["width"], sizes[0]["height"]],
@@ -362,6 +365,7 @@ def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: fl
     xyz = np.zeros((0, 3))
     rgb = np.zeros((0, 3), dtype=np.uint8)
     error = np.zeros((0,))
+    obs_image, obs_point, obs_uv = [], [], []
     if ordered:
         best = ordered[0]
         camera_ids = {best.images[i].camera_id for i in best.reg_image_ids()}
@@ -384,7 +388,14 @@ def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: fl
             xyz = np.array([p.xyz for p in points], dtype=np.float64)
             rgb = np.array([p.color for p in points], dtype=np.uint8)
             error = np.array([p.error for p in points], dtype=np.float64)
-    np.savez(work / "points.npz", xyz=xyz, rgb=rgb, error=error)
+        for row, point in enumerate(points):
+            for element in point.track.elements:
+                image = best.images[element.image_id]
+                obs_image.append(index_of[image.name])
+                obs_point.append(row)
+                obs_uv.append(image.points2D[element.point2D_idx].xy)
+    np.savez(work / "points.npz", xyz=xyz, rgb=rgb, error=error, obs_image=np.asarray(obs_image, dtype=np.int64),
+             obs_point=np.asarray(obs_point, dtype=np.int64), obs_uv=np.asarray(obs_uv, dtype=np.float64).reshape(-1, 2))
     (work / "result.json").write_text(json.dumps(result))
 
 

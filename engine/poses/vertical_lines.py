@@ -43,6 +43,13 @@ INLIER_DEG = 0.75  # |angle between a segment's plane and up| for an inlier
 RANSAC_ITERATIONS = 500
 MIN_LINES = 30
 MIN_PHOTOS = 3
+# One photo's own up (`photo_up`): at least this many segments within PHOTO_INLIER_DEG of it (of its
+# PHOTO_MAX_LINES longest near the capture's up), spread over directions (the second eigenvalue of
+# their planes at least PHOTO_MIN_SPREAD of the total).
+PHOTO_MIN_LINES = 6
+PHOTO_MAX_LINES = 60
+PHOTO_INLIER_DEG = 1.5
+PHOTO_MIN_SPREAD = 0.02
 
 
 @dataclass(frozen=True)
@@ -91,20 +98,75 @@ def segment_plane_normals(frame: Frame) -> tuple[np.ndarray, np.ndarray]:
     return normals, lengths
 
 
+def evenly_spaced(count: int) -> np.ndarray:
+    """Indices (int64, ascending) of at most MAX_PHOTOS of `count` photos, evenly spaced."""
+    return np.unique(np.linspace(0, count - 1, min(MAX_PHOTOS, count)).round().astype(int))
+
+
+def photo_up(normals: np.ndarray, lengths: np.ndarray, up: np.ndarray) -> Optional[np.ndarray]:
+    """Up (world axes, unit (3,)) as one photo's own vertical lines measure it, or None when it shows
+    too few of them, in too few directions, to pin it down. The segments' planes (`normals` (M, 3)
+    unit, `lengths` (M,)) within MAX_OFF_PRIOR_DEG of `up` (3,), the whole capture's, are searched as
+    `up_from_vertical_lines` searches all photos' (every pair of the PHOTO_MAX_LINES longest tried),
+    then refitted on the inliers. Gravity is one direction for every photo, so a photo's up differs
+    from the capture's only as far as its pose is off."""
+    near = np.flatnonzero(np.abs(normals @ up) < np.sin(np.radians(MAX_OFF_PRIOR_DEG)))
+    if len(near) < PHOTO_MIN_LINES:
+        return None
+    near = near[np.argsort(-lengths[near])[:PHOTO_MAX_LINES]]
+    n, weight = normals[near], lengths[near]
+    first, second = np.triu_indices(len(n), k=1)
+    candidates = np.cross(n[first], n[second])
+    norms = np.linalg.norm(candidates, axis=1)
+    candidates = candidates[norms > 0.2] / norms[norms > 0.2, None]  # near-parallel planes pin nothing
+    candidates *= np.sign(candidates @ up)[:, None]
+    candidates = candidates[candidates @ up > np.cos(np.radians(MAX_OFF_PRIOR_DEG))]
+    if not len(candidates):
+        return None
+    limit = np.sin(np.radians(PHOTO_INLIER_DEG))
+    scores = (np.abs(candidates @ n.T) < limit) @ weight
+    estimate = candidates[int(np.argmax(scores))]
+    for _ in range(3):
+        inliers = np.abs(n @ estimate) < limit
+        if inliers.sum() < PHOTO_MIN_LINES:
+            return None
+        values, vectors = np.linalg.eigh((n[inliers] * weight[inliers, None]).T @ n[inliers])
+        # Lines all at one place in the photo have nearly one plane: they pin up down only along it.
+        if values[1] < PHOTO_MIN_SPREAD * values.sum():
+            return None
+        estimate = vectors[:, 0] * np.sign(vectors[:, 0] @ up)
+    return estimate
+
+
 def up_from_vertical_lines(frames: Sequence[Frame], prior_up: np.ndarray, seed: int = 0) -> Optional[LineGravity]:
     """Gravity's up (world axes) from the vertical lines seen by the posed `frames`, near `prior_up` (3,);
     None when too few vertical lines are seen to trust it."""
     posed = [f for f in frames if f.pose is not None and f.K is not None]
     if len(posed) < MIN_PHOTOS:
         return None
-    chosen = [posed[i] for i in np.unique(np.linspace(0, len(posed) - 1, min(MAX_PHOTOS, len(posed))).round().astype(int))]
+    return up_from_segments(photo_segments([posed[i] for i in evenly_spaced(len(posed))]), prior_up, seed)
+
+
+def photo_segments(frames: Sequence[Frame]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """`segment_plane_normals` of each posed frame (normals (M, 3), lengths (M,)); none for a photo
+    that cannot be read (it is reported where it matters: SfM, the fusion)."""
+    segments = []
+    for frame in frames:
+        try:
+            segments.append(segment_plane_normals(frame))
+        except CaptureError:
+            segments.append((np.zeros((0, 3)), np.zeros(0)))
+    return segments
+
+
+def up_from_segments(segments: Sequence[tuple[np.ndarray, np.ndarray]], prior_up: np.ndarray,
+                     seed: int = 0) -> Optional[LineGravity]:
+    """`up_from_vertical_lines` on photos' segments already found (`photo_segments`)."""
+    if len(segments) < MIN_PHOTOS:
+        return None
     prior = np.asarray(prior_up, dtype=np.float64) / np.linalg.norm(prior_up)
     normals, lengths, owners = [], [], []
-    for index, frame in enumerate(chosen):
-        try:
-            n, length = segment_plane_normals(frame)
-        except CaptureError:  # an unreadable photo is reported where it matters (SfM, the fusion); here it adds no lines
-            continue
+    for index, (n, length) in enumerate(segments):
         near = np.abs(n @ prior) < np.sin(np.radians(MAX_OFF_PRIOR_DEG))
         normals.append(n[near])
         lengths.append(length[near])
