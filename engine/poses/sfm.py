@@ -28,6 +28,7 @@ Choices (measured in platform-notes section 1 and on the fox photos):
 
 from __future__ import annotations
 
+import shutil
 import tempfile
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -40,7 +41,7 @@ from ..capture.naming import name_list
 from ..capture.undistort import undistort_images
 from ..errors import PoseError
 from ..jobs import CancelToken, ProgressCallback, check
-from .bends import find_bend
+from .bends import Bend, find_bend
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .gravity import Alignment, KnownDistance, align_gravity_and_scale
 from .process import run_pose_job
@@ -53,6 +54,9 @@ INTRINSICS = ("auto", "fixed", "prior", "estimate")
 CALIBRATED_FORMATS = ("colmap", "transforms", "scannet")
 # COLMAP models whose parameters start with a pinhole part we can hand to the reconstruction.
 CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "SIMPLE_PINHOLE", "PINHOLE")
+# How often a bent model is mapped again before the best of them is cut. On one database of the 3D
+# Scanner App corridor 3 of 10 mapper runs came out straight; each run there takes about 30 s.
+BENT_REMAPS = 2
 
 
 @dataclass
@@ -196,18 +200,66 @@ def estimate_poses(
         # groups of a quarter of the photos (3 to 10, COLMAP's default) so the report names them.
         "min_model_size": max(3, min(10, len(names) // 4)),
     }
-    result, xyz, rgb = run_pose_job(job, work, keep_work=options.work_dir is not None, task="structure from motion",
-                                    progress=progress, cancel=cancel)
+    try:
+        result, xyz, rgb = run_pose_job(job, work, keep_work=True, task="structure from motion", progress=progress,
+                                        cancel=cancel)
+        if not result["model_sizes"]:
+            db = result["database"]
+            raise PoseError(
+                f"no camera poses could be estimated for the {len(names)} photos in {capture.root}: "
+                f"{db['mean_keypoints']:.0f} features per photo on average and {db['verified_pairs']} "
+                "photo pairs with enough matches. Take photos with more overlap (each spot in 3 or more "
+                "photos) of textured surfaces; blank walls, mirrors and blurry photos cannot be matched."
+            )
+        walk = _walk_check(result, work, matcher, options)
+        timings = dict(result["timings"])
+        remaps = 0
+        # A bent model is mapped again (the mapper seeded otherwise; the matches are kept): the same
+        # database gives a straight model in some runs and a bent one in others.
+        while walk.bend is not None and remaps < BENT_REMAPS:
+            remaps += 1
+            try:
+                again = run_pose_job({**job, "remap_seed": remaps}, work, keep_work=True,
+                                     task="structure from motion (mapping again: the poses bent)", progress=progress,
+                                     cancel=cancel)
+            except PoseError:  # the first model stands, cut where it bends
+                break
+            timings["map again"] = timings.get("map again", 0.0) + again[0]["timings"]["map"]
+            again_walk = _walk_check(again[0], work, matcher, options) if again[0]["model_sizes"] else None
+            if again_walk is not None and again_walk.kept > walk.kept:
+                (result, xyz, rgb), walk = again, again_walk
+        walk.remaps = remaps
+        result["timings"] = timings
+    finally:
+        if options.work_dir is None:
+            shutil.rmtree(work, ignore_errors=True)
+    return _pose_result(capture, options, matcher, intrinsics, given_K, result, xyz, rgb, names, walk, progress, cancel)
 
-    if not result["model_sizes"]:
-        db = result["database"]
-        raise PoseError(
-            f"no camera poses could be estimated for the {len(names)} photos in {capture.root}: "
-            f"{db['mean_keypoints']:.0f} features per photo on average and {db['verified_pairs']} "
-            "photo pairs with enough matches. Take photos with more overlap (each spot in 3 or more "
-            "photos) of textured surfaces; blank walls, mirrors and blurry photos cannot be matched."
-        )
-    return _pose_result(capture, options, matcher, intrinsics, given_K, result, xyz, rgb, names, progress, cancel)
+
+@dataclass
+class WalkCheck:
+    """What `_walk_check` found in one SfM result: photos to leave out (capture indices) and why."""
+
+    lone: list[int]  # posed only through photos far along the walk
+    bend: Optional[Bend]  # indexes `order`
+    order: list[int]  # capture indices of the posed photos the bend was looked for in, in capture order
+    kept: int  # photos posed after leaving these out
+    remaps: int = 0  # how often the mapper ran again because the model bent
+
+
+def _walk_check(result: dict, work: Path, matcher: str, options: SfmOptions) -> WalkCheck:
+    """Lone photos (sequential matching only) and a bend (`bends.find_bend`) in the worker's `result`,
+    looked for in its downscaled photos (work/images) with its camera (the lens's radial term ignored:
+    it bends the lines of the corridor's photos by a pixel or two at their edges)."""
+    camera = result["camera"]
+    K_scaled, _ = _pinhole(camera["model"], camera["params"])
+    posed = sorted((int(Path(im["name"]).stem), im) for im in result["images"])
+    lone = lone_photos([i for i, _ in posed], options.sequential_overlap) if matcher == "sequential" else []
+    walk = [(i, im) for i, im in posed if i not in lone]
+    frames = [Frame(work / "images" / im["name"], camera["width"], camera["height"], K_scaled,
+                    _cam_to_world(np.asarray(im["cam_from_world"], dtype=np.float64))) for _, im in walk]
+    bend = find_bend(frames)
+    return WalkCheck(lone, bend, [i for i, _ in walk], len(walk) if bend is None else len(bend.kept))
 
 
 def _pinhole(model: str, params: list[float]) -> tuple[np.ndarray, list[float]]:
@@ -243,10 +295,12 @@ def _pose_result(
     xyz: np.ndarray,
     rgb: np.ndarray,
     names: list[str],
+    walk: WalkCheck,
     progress: Optional[ProgressCallback],
     cancel: Optional[CancelToken],
 ) -> PoseResult:
-    """Turn the worker's result into posed frames (full-size K), checks, undistortion and alignment."""
+    """Turn the worker's result into posed frames (full-size K), checks, the photos `walk` leaves out,
+    undistortion and alignment."""
     camera = result["camera"]
     sx, sy = result["scale_xy"]
     K_scaled, radial = _pinhole(camera["model"], camera["params"])
@@ -292,18 +346,18 @@ def _pose_result(
                             "off: the reconstruction treats the photos as pinhole, so walls near the image "
                             "edges will bend")
     leave_out = np.zeros(len(frames), bool)
-    if matcher == "sequential":
-        lone = lone_photos([i for i, f in enumerate(frames) if f.pose is not None], options.sequential_overlap)
-        if lone:
-            leave_out[lone] = True
-            warnings.append(f"{', '.join(frames[i].name for i in lone)}: placed only through photos far along the walk, "
-                            f"none of the {options.sequential_overlap} before or after it, so probably at a look-alike "
-                            "place; left out")
-    kept = [i for i, f in enumerate(frames) if f.pose is not None and not leave_out[i]]
-    bend = find_bend([frames[i] for i in kept])
-    if bend is not None:
-        leave_out[[kept[k] for k in bend.cut]] = True
-        warnings.append(bend.describe([frames[i].name for i in kept]))
+    if walk.lone:
+        leave_out[walk.lone] = True
+        warnings.append(f"{', '.join(frames[i].name for i in walk.lone)}: placed only through photos far along the "
+                        f"walk, none of the {options.sequential_overlap} before or after it, so probably at a "
+                        "look-alike place; left out")
+    if walk.bend is not None:
+        leave_out[[walk.order[k] for k in walk.bend.cut]] = True
+        warnings.append(walk.bend.describe([frames[i].name for i in walk.order])
+                        + (f" (the mapper ran {walk.remaps + 1} times, bent every time)" if walk.remaps else ""))
+    elif walk.remaps:
+        notes.append(f"the first model bent (a stretch of photos leaning from the rest); mapping ran again "
+                     f"{walk.remaps} time(s), and this model is straight")
     if leave_out.any():
         frames, xyz, rgb = _leave_out(frames, leave_out, result["tracks"], xyz, rgb)
         registered = [f.name for f in frames if f.pose is not None]

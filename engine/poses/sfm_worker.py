@@ -25,6 +25,9 @@ JOB.json (written by `sfm.py`):
   max_num_features   SIFT features per image
   num_threads        -1 for all cores
   min_model_size     smallest sub-model COLMAP keeps
+  remap_seed         optional: map the database an earlier job of this work_dir matched again, the mapper
+                     seeded with this (the parent found that job's model bent); extraction and matching
+                     are skipped
 
 Result (work_dir/result.json and work_dir/points.npz): see `_write_result`. Its "database" entry says
 whether low-contrast photos had their features extracted again ("low_contrast": {"before", "after"}
@@ -256,6 +259,14 @@ def run_sfm(job: dict) -> None:
     db_path = work / "database.db"
     sparse_dir = work / "sparse"
     sparse_dir.mkdir(parents=True, exist_ok=True)
+    names = [item["name"] for item in job["images"]]
+    if job.get("remap_seed") is not None:
+        # The parent found the model bent: map the same matches again, the mapper seeded otherwise.
+        previous = json.loads((work / "result.json").read_text())
+        width, height = previous["source_size"]
+        _map(job, work, db_path, image_dir, names, [{"width": width, "height": height}], *previous["scale_xy"],
+             previous["database"], {}, seed=int(job["remap_seed"]))
+        return
     if db_path.exists():
         db_path.unlink()
     timings: dict[str, float] = {}
@@ -263,7 +274,6 @@ def run_sfm(job: dict) -> None:
     start = time.perf_counter()
     sizes, sx, sy = downscale_images(job, image_dir)
     timings["prepare"] = time.perf_counter() - start
-    names = [item["name"] for item in job["images"]]
 
     start = time.perf_counter()
     reader = (pycolmap.CameraMode.SINGLE, reader_options(job, sx, sy))
@@ -306,7 +316,17 @@ def run_sfm(job: dict) -> None:
     stats = database_stats(db_path)
     if job["matcher"] == "sequential":
         stats["far_pairs_dropped"] = far_pairs_dropped
+    stats["low_contrast"] = low_contrast
+    _map(job, work, db_path, image_dir, names, sizes, sx, sy, stats, timings, seed=None)
 
+
+def _map(job: dict, work: Path, db_path: Path, image_dir: Path, names: list[str], sizes: list[dict], sx: float,
+         sy: float, stats: dict, timings: dict, seed: Optional[int]) -> None:
+    """COLMAP's incremental mapper on the matched database (`seed`: the mapper's random seed, None for
+    COLMAP's own), then `_write_result`."""
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
+
+    sparse_dir = work / "sparse"
     start = time.perf_counter()
     say("stage", "map", len(names))
     options = pycolmap.IncrementalPipelineOptions()
@@ -325,8 +345,10 @@ def run_sfm(job: dict) -> None:
     attempts: list[int] = []
     models: dict = {}
     while len(attempts) < MAPPING_ATTEMPTS:
-        attempt_dir = sparse_dir / f"attempt_{len(attempts)}"
+        attempt_dir = sparse_dir / f"attempt_{len(attempts)}" if seed is None else sparse_dir / f"seed_{seed}_{len(attempts)}"
         attempt_dir.mkdir(parents=True, exist_ok=True)
+        if seed is not None:
+            options.random_seed = seed * MAPPING_ATTEMPTS + len(attempts)
         found = pycolmap.incremental_mapping(db_path, image_dir, attempt_dir, options=options)
         attempts.append(max((r.num_reg_images() for r in found.values()), default=0))
         if attempts[-1] >= max((r.num_reg_images() for r in models.values()), default=0) and found:
@@ -337,7 +359,6 @@ def run_sfm(job: dict) -> None:
     registered = max(attempts)
     say("progress", "map", registered, len(names))
 
-    stats["low_contrast"] = low_contrast
     stats["mapping_attempts"] = attempts
     _write_result(work, models, sizes, sx, sy, stats, timings, {name: i for i, name in enumerate(names)})
 
@@ -454,7 +475,6 @@ def run_refine(job: dict) -> None:
     start = time.perf_counter()
     sizes, sx, sy = downscale_images(job, image_dir)
     timings["prepare"] = time.perf_counter() - start
-    names = [item["name"] for item in job["images"]]
     params = [_pinhole_params(K, sx, sy) for K in job["K_per_image"]]
     shared = all(np.allclose(p, params[0]) for p in params)
 

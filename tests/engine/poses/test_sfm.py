@@ -356,3 +356,39 @@ def test_the_mappers_error_filter_follows_the_photos_size():
     assert mapper_max_error_px(320) == pytest.approx(1.28)
     assert mapper_max_error_px(640) == pytest.approx(2.56)
     assert mapper_max_error_px(160) == 1.0
+
+
+def test_a_bent_model_is_mapped_again_and_cut_if_it_stays_bent(room_photos, monkeypatch):
+    """The bend itself is found by the photos' vertical lines (test_bends.py); here `find_bend` says
+    what it found, and SfM maps the same matches again, keeps a straight model, or cuts the last one."""
+    from engine.poses import sfm
+    from engine.poses.bends import Bend
+
+    folder, truth = room_photos
+    calls: list[int] = []
+
+    def bent_first(frames):
+        calls.append(len(frames))
+        return Bend(list(range(6)), list(range(6, 12)), [(6, 11)], [8.0, 8.0, 8.0]) if len(calls) == 1 else None
+
+    monkeypatch.setattr(sfm, "find_bend", bent_first)
+    straight = estimate_poses(photo_capture(folder), SfmOptions(align=False))
+
+    assert calls == [12, 12]  # mapped twice, the second model straight
+    assert len(straight.registered) == 12 and not any("bend" in w for w in straight.warnings)
+    assert any("mapping ran again 1 time(s)" in n for n in straight.notes)
+    assert "map again" in straight.timings
+    assert pose_errors([f.pose for f in straight.capture.frames], truth)["rotation_deg_max"] < 1.0
+
+    calls.clear()
+    monkeypatch.setattr(sfm, "find_bend", lambda frames: calls.append(len(frames)) or Bend(
+        list(range(6)), list(range(6, 12)), [(6, 11)], [8.0, 8.0, 8.0]))
+    cut = estimate_poses(photo_capture(folder), SfmOptions(align=False))
+
+    assert calls == [12] * (1 + sfm.BENT_REMAPS)
+    assert cut.registered == [f"{k:03d}.png" for k in range(6)]
+    assert cut.unregistered == [f"{k:03d}.png" for k in range(6, 12)]
+    assert [f.pose is None for f in cut.capture.frames] == [False] * 6 + [True] * 6
+    assert any("only the 6 photos 000.png..005.png are used" in w and "the mapper ran 3 times, bent every time" in w
+               for w in cut.warnings)
+    assert len(cut.points) < len(straight.points)  # the cut photos' points went with them
