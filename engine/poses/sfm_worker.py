@@ -475,6 +475,7 @@ def run_refine(job: dict) -> None:
     start = time.perf_counter()
     sizes, sx, sy = downscale_images(job, image_dir)
     timings["prepare"] = time.perf_counter() - start
+    names = [item["name"] for item in job["images"]]
     params = [_pinhole_params(K, sx, sy) for K in job["K_per_image"]]
     shared = all(np.allclose(p, params[0]) for p in params)
 
