@@ -55,7 +55,7 @@ CALIBRATED_FORMATS = ("colmap", "transforms", "scannet")
 # COLMAP models whose parameters start with a pinhole part we can hand to the reconstruction.
 CAMERA_MODELS = ("SIMPLE_RADIAL", "RADIAL", "SIMPLE_PINHOLE", "PINHOLE")
 # How often a bent model is mapped again before the best of them is cut. On one database of the 3D
-# Scanner App corridor 2 of 11 mapper runs came out straight (4 of 5 fresh SfM runs did); each run
+# Scanner App corridor 2 of 11 mapper runs came out straight (4 of 6 fresh SfM runs did); each run
 # there takes 25-50 s.
 BENT_REMAPS = 2
 
