@@ -116,26 +116,46 @@ def photo_up(normals: np.ndarray, lengths: np.ndarray, up: np.ndarray) -> Option
     near = near[np.argsort(-lengths[near])[:PHOTO_MAX_LINES]]
     n, weight = normals[near], lengths[near]
     first, second = np.triu_indices(len(n), k=1)
-    candidates = np.cross(n[first], n[second])
-    norms = np.linalg.norm(candidates, axis=1)
-    candidates = candidates[norms > 0.2] / norms[norms > 0.2, None]  # near-parallel planes pin nothing
-    candidates *= np.sign(candidates @ up)[:, None]
-    candidates = candidates[candidates @ up > np.cos(np.radians(MAX_OFF_PRIOR_DEG))]
+    limit = np.sin(np.radians(PHOTO_INLIER_DEG))
+    estimate = _best_up(_pair_ups(n[first], n[second], up), n, weight, limit)
+    if estimate is None:
+        return None
+    estimate, values, inliers = _refit(n, weight, estimate, limit, up)
+    # Lines all at one place in the photo have nearly one plane: they pin up down only along it.
+    if inliers < PHOTO_MIN_LINES or values[1] < PHOTO_MIN_SPREAD * values.sum():
+        return None
+    return estimate
+
+
+def _pair_ups(first: np.ndarray, second: np.ndarray, prior: np.ndarray) -> np.ndarray:
+    """(K, 3) unit ups, each the direction both of a pair of segment planes contain (normals `first`,
+    `second` (P, 3)), on `prior`'s side; only pairs that pin one down (not near-parallel planes) within
+    MAX_OFF_PRIOR_DEG of `prior` (3,)."""
+    ups = np.cross(first, second)
+    norms = np.linalg.norm(ups, axis=1)
+    ups = ups[norms >= 0.2] / norms[norms >= 0.2, None]
+    ups *= np.sign(ups @ prior)[:, None]
+    return ups[ups @ prior >= np.cos(np.radians(MAX_OFF_PRIOR_DEG))]
+
+
+def _best_up(candidates: np.ndarray, normals: np.ndarray, lengths: np.ndarray, limit: float) -> Optional[np.ndarray]:
+    """The candidate up (of (K, 3)) with the longest segments whose plane (`normals` (M, 3)) holds it
+    within `limit` (the sine of the inlier angle); the first such, or None without candidates."""
     if not len(candidates):
         return None
-    limit = np.sin(np.radians(PHOTO_INLIER_DEG))
-    scores = (np.abs(candidates @ n.T) < limit) @ weight
-    estimate = candidates[int(np.argmax(scores))]
+    return candidates[int(np.argmax((np.abs(candidates @ normals.T) < limit) @ lengths))]
+
+
+def _refit(normals: np.ndarray, lengths: np.ndarray, up: np.ndarray, limit: float,
+           prior: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """`up` refitted three times on its inlier segments (planes within `limit` of it), as the direction
+    most perpendicular to their length-weighted normals: (up (3,) on `prior`'s side, the last fit's
+    eigenvalues (3,) ascending, its inlier count)."""
     for _ in range(3):
-        inliers = np.abs(n @ estimate) < limit
-        if inliers.sum() < PHOTO_MIN_LINES:
-            return None
-        values, vectors = np.linalg.eigh((n[inliers] * weight[inliers, None]).T @ n[inliers])
-        # Lines all at one place in the photo have nearly one plane: they pin up down only along it.
-        if values[1] < PHOTO_MIN_SPREAD * values.sum():
-            return None
-        estimate = vectors[:, 0] * np.sign(vectors[:, 0] @ up)
-    return estimate
+        inliers = np.abs(normals @ up) < limit
+        values, vectors = np.linalg.eigh((normals[inliers] * lengths[inliers, None]).T @ normals[inliers])
+        up = vectors[:, 0] * np.sign(vectors[:, 0] @ prior)
+    return up, values, int(inliers.sum())
 
 
 def up_from_vertical_lines(frames: Sequence[Frame], prior_up: np.ndarray, seed: int = 0) -> Optional[LineGravity]:
@@ -176,28 +196,12 @@ def up_from_segments(segments: Sequence[tuple[np.ndarray, np.ndarray]], prior_up
     n, length, owner = np.concatenate(normals), np.concatenate(lengths), np.concatenate(owners)
 
     rng = np.random.default_rng(seed)
+    pairs = np.array([rng.choice(len(n), 2, replace=False) for _ in range(RANSAC_ITERATIONS)])
     limit = np.sin(np.radians(INLIER_DEG))
-    best, best_score = None, -1.0
-    for _ in range(RANSAC_ITERATIONS):
-        i, j = rng.choice(len(n), 2, replace=False)
-        up = np.cross(n[i], n[j])
-        norm = np.linalg.norm(up)
-        if norm < 0.2:  # near-parallel planes pin no direction down
-            continue
-        up = up / norm * np.sign(up @ prior)
-        if up @ prior < np.cos(np.radians(MAX_OFF_PRIOR_DEG)):
-            continue
-        score = float(length[np.abs(n @ up) < limit].sum())
-        if score > best_score:
-            best, best_score = up, score
+    best = _best_up(_pair_ups(n[pairs[:, 0]], n[pairs[:, 1]], prior), n, length, limit)
     if best is None:
         return None
-    up = best
-    for _ in range(3):
-        inliers = np.abs(n @ up) < limit
-        weighted = (n[inliers] * length[inliers, None]).T @ n[inliers]
-        refit = np.linalg.eigh(weighted)[1][:, 0]
-        up = refit * np.sign(refit @ prior)
+    up, _, _ = _refit(n, length, best, limit, prior)
     inliers = np.abs(n @ up) < limit
     photos = len(np.unique(owner[inliers]))
     if inliers.sum() < MIN_LINES or photos < MIN_PHOTOS:
