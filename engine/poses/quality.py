@@ -49,8 +49,14 @@ def quality_warnings(
     model_sizes: Sequence[int],
     reprojection_error_px: float,
     num_points: int,
+    groups: Optional[Sequence[Sequence[int]]] = None,
+    links: Sequence[tuple[int, int, int]] = (),
+    frame_names: Sequence[str] = (),
 ) -> list[str]:
-    """Warnings for a result whose largest model was kept."""
+    """Warnings for a result whose largest model was kept. `groups`: each model's photos (capture
+    indices into `frame_names`, the kept model first) and `links` (photo a, photo b, verified matches):
+    the pairs of photos in different groups, so a split says where the photos part and how little
+    linked them."""
     warnings: list[str] = []
     registered = num_images - len(unregistered)
     if registered < MIN_REGISTERED_FRACTION * num_images:
@@ -59,11 +65,14 @@ def quality_warnings(
             f"{name_list(unregistered)}. Take photos with more overlap between neighbours."
         )
     if len(model_sizes) > 1:
-        warnings.append(
-            f"the photos split into {len(model_sizes)} separate groups "
-            f"({', '.join(map(str, model_sizes))} photos); only the largest is used. "
-            "Add photos that connect the groups."
-        )
+        warning = (f"the photos split into {len(model_sizes)} separate groups "
+                   f"({', '.join(map(str, model_sizes))} photos); only the largest is used")
+        if groups and frame_names:
+            warning += f" ({photo_runs(groups[0], frame_names)}). " + " ".join(
+                _left_out_group(group, groups[0], links, frame_names) for group in groups[1:])
+        else:
+            warning += ". Add photos that connect the groups."
+        warnings.append(warning)
     if reprojection_error_px > MAX_REPROJECTION_ERROR_PX:
         warnings.append(
             f"mean reprojection error is {reprojection_error_px:.2f} px (above {MAX_REPROJECTION_ERROR_PX} px): "
@@ -75,6 +84,64 @@ def quality_warnings(
             "constrained; photograph textured surfaces"
         )
     return warnings
+
+
+def photo_runs(indices: Sequence[int], frame_names: Sequence[str], limit: int = 3) -> str:
+    """The photos `indices` (capture order) as stretches: "a to b", "a to b and c", ..."""
+    ordered = sorted(set(int(i) for i in indices))
+    runs: list[list[int]] = []
+    for i in ordered:
+        if runs and i == runs[-1][-1] + 1:
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    words = [frame_names[r[0]] if len(r) == 1 else f"{frame_names[r[0]]} to {frame_names[r[-1]]}" for r in runs]
+    return name_list(words, limit=limit).replace(" more", " more stretches")
+
+
+NEAR_THE_PASSAGE = 10  # photos either side of where a left-out group and the kept one meet in capture order
+
+
+def _passage(group: set[int], kept: set[int]) -> Optional[tuple[int, int]]:
+    """(a, b): the consecutive photos, in capture order among the two groups' photos, where the capture
+    passes from one group to the other between their longest stretches; None if it never does."""
+    order = sorted(group | kept)
+    runs: list[list[int]] = []  # stretches of photos of one group, in capture order
+    for i in order:
+        if runs and (i in group) == (runs[-1][-1] in group):
+            runs[-1].append(i)
+        else:
+            runs.append([i])
+    if len(runs) < 2:
+        return None
+    best = max(range(len(runs) - 1), key=lambda r: len(runs[r]) + len(runs[r + 1]))
+    return runs[best][-1], runs[best + 1][0]
+
+
+def _left_out_group(group: Sequence[int], kept: Sequence[int], links: Sequence[tuple[int, int, int]],
+                    frame_names: Sequence[str]) -> str:
+    """Where one left-out group meets the kept one in the capture, what linked them there, and where
+    more photos would join them. A photo placed at a look-alike place far along the walk is in its
+    group's stretches but not where the capture passes between the groups."""
+    inside, used = set(int(i) for i in group), set(int(i) for i in kept)
+    what = f"{photo_runs(group, frame_names)} ({len(inside)} photos) is left out"
+    passage = _passage(inside, used)
+    if passage is None:
+        return f"{what}. Add photos that connect the groups."
+    a, b = passage
+    near = sorted(((x, y, n) for x, y, n in links
+                   if ((x in inside and y in used) or (y in inside and x in used))
+                   and a - NEAR_THE_PASSAGE <= min(x, y) and max(x, y) <= b + NEAR_THE_PASSAGE), key=lambda link: -link[2])
+    where = f"where the capture passes from {frame_names[a]} to {frame_names[b]}"
+    if not near:
+        linked = f"{where}, no photo pair links the two groups"
+    else:
+        x, y, matches = near[0]
+        x, y = sorted((x, y))
+        pairs = "only 1 photo pair links" if len(near) == 1 else f"only {len(near)} photo pairs link"
+        linked = (f"{where}, {pairs} the two groups (the best, {frame_names[x]} and {frame_names[y]}, with "
+                  f"{matches} matches), too few to place one group against the other")
+    return f"{what}: {linked}. Take more photos there, closer together and with texture in view."
 
 
 def significant_distortion(shift_px: float, image_size: tuple[int, int]) -> bool:

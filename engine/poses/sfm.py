@@ -317,12 +317,17 @@ def _pose_result(
     frames: list[Frame] = [replace(f, pose=poses.get(i), K=K.copy()) for i, f in enumerate(capture.frames)]
     registered = [f.name for i, f in enumerate(capture.frames) if i in poses]
     unregistered = [f.name for i, f in enumerate(capture.frames) if i not in poses]
+    groups = [[index_of[name] for name in model] for model in result.get("model_images", [])]
+    links = [(index_of[a], index_of[b], int(n)) for a, b, n in result.get("group_links", [])]
     warnings = quality_warnings(
         num_images=len(frames),
         unregistered=unregistered,
         model_sizes=result["model_sizes"],
         reprojection_error_px=result["mean_reprojection_error"],
         num_points=len(xyz),
+        groups=groups,
+        links=links,
+        frame_names=[f.name for f in capture.frames],
     )
 
     notes: list[str] = []

@@ -360,17 +360,36 @@ def _map(job: dict, work: Path, db_path: Path, image_dir: Path, names: list[str]
     say("progress", "map", registered, len(names))
 
     stats["mapping_attempts"] = attempts
-    _write_result(work, models, sizes, sx, sy, stats, timings, {name: i for i, name in enumerate(names)})
+    _write_result(work, models, sizes, sx, sy, stats, timings, {name: i for i, name in enumerate(names)}, db_path)
+
+
+def _group_links(db_path: Path, ordered: list) -> list[list]:
+    """[[name a, name b, inliers], ...]: the verified photo pairs whose photos are in different models
+    (`ordered`, largest first), strongest first: what held the groups together, as little as it was."""
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
+
+    model_of = {r.images[i].name: m for m, r in enumerate(ordered) for i in r.reg_image_ids()}
+    links = []
+    with pycolmap.Database.open(str(db_path)) as db:
+        name = {image.image_id: image.name for image in db.read_all_images()}
+        pair_ids, inliers = db.read_two_view_geometry_num_inliers()
+        for pair_id, count in zip(pair_ids, inliers):
+            a, b = (name[i] for i in pycolmap.pair_id_to_image_pair(pair_id))
+            if count > 0 and a in model_of and b in model_of and model_of[a] != model_of[b]:
+                links.append([a, b, int(count)])
+    return sorted(links, key=lambda link: -link[2])
 
 
 def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: float, stats: dict, timings: dict,
-                  index_of: dict[str, int]) -> None:
+                  index_of: dict[str, int], db_path: Optional[Path] = None) -> None:
     """result.json: {"source_size": [w, h], "scaled_size": [w, h], "model_sizes": [...] (largest first),
     "camera": {"model", "params", "width", "height"} | null, "images": [{"name", "cam_from_world" 3x4}],
     "mean_reprojection_error", "num_points3D", "database": stats, "timings"};
     points.npz: xyz (N, 3) float64, rgb (N, 3) uint8, error (N,) float64 of the largest model, and its
     observations (obs_image: job image index (`index_of` a COLMAP name), obs_point: row in xyz, obs_uv:
-    the keypoint in the downscaled photo), so the parent can drop the points of photos it leaves out."""
+    the keypoint in the downscaled photo), so the parent can drop the points of photos it leaves out.
+    With more than one model (and `db_path`): "model_images", each model's photo names (largest first),
+    and "group_links" (`_group_links`), so the report can say where the photos split and what linked them."""
     ordered = sorted(models.values(), key=lambda r: r.num_reg_images(), reverse=True)
     result: dict = {
         "source_size": [sizes[0]["width"], sizes[0]["height"]],
@@ -383,6 +402,9 @@ def _write_result(work: Path, models: dict, sizes: list[dict], sx: float, sy: fl
         "database": stats,
         "timings": timings,
     }
+    if len(ordered) > 1 and db_path is not None:
+        result["model_images"] = [sorted(r.images[i].name for i in r.reg_image_ids()) for r in ordered]
+        result["group_links"] = _group_links(db_path, ordered)
     xyz = np.zeros((0, 3))
     rgb = np.zeros((0, 3), dtype=np.uint8)
     error = np.zeros((0,))

@@ -31,6 +31,28 @@ def test_each_problem_gets_its_own_warning():
     assert "2.00 px" in error and "80 3D points" in points
 
 
+def test_a_split_walk_says_where_the_photos_part_and_how_little_linked_them():
+    """The 3D Scanner App corridor's photos alone: a U-shaped walk that SfM poses as two groups, photos
+    0-53 and 54-145, linked at the corner only by two pairs (30 and 19 verified matches, no point both
+    groups see). One photo of the first leg's look-alike end (127) was placed in the first group and
+    matches its own neighbours strongly: the warning still names the corner, where the walk parts."""
+    names = [f"frame_{i:05d}.jpg" for i in range(146)]
+    kept = [i for i in range(54, 146) if i != 127]
+    left_out = list(range(54)) + [127]
+    links = [(52, 54, 19), (54, 53, 30), (126, 127, 374), (127, 128, 350)]
+    (warning,) = quality_warnings(146, [], [91, 55], 0.5, 5000, groups=[kept, left_out], links=links, frame_names=names)
+    assert ("2 separate groups (91, 55 photos); only the largest is used (frame_00054.jpg to frame_00126.jpg and "
+            "frame_00128.jpg to frame_00145.jpg)") in warning
+    assert "frame_00000.jpg to frame_00053.jpg and frame_00127.jpg (55 photos) is left out" in warning
+    assert ("where the capture passes from frame_00053.jpg to frame_00054.jpg, only 2 photo pairs link the two "
+            "groups (the best, frame_00053.jpg and frame_00054.jpg, with 30 matches)") in warning
+    assert "Take more photos there" in warning
+    # Nothing links them at the corner.
+    (warning,) = quality_warnings(146, [], [91, 55], 0.5, 5000, groups=[kept, left_out], links=links[2:],
+                                  frame_names=names)
+    assert "from frame_00053.jpg to frame_00054.jpg, no photo pair links the two groups" in warning
+
+
 def test_sixty_percent_registered_is_still_fine():
     assert quality_warnings(10, ["a.jpg", "b.jpg", "c.jpg", "d.jpg"], [6], 0.5, 500) == []
 

@@ -170,6 +170,13 @@ def test_mapping_runs_again_while_fewer_than_half_the_photos_are_posed(tmp_path)
     assert len(result.registered) == 5 and result.model_sizes[0] == 5
     note = next((n for n in result.notes if n.startswith("mapping ran")), f"no note in {result.notes}")
     assert note.startswith("mapping ran 3 times (few photos posed: 5, 5, 5 of 15)"), note
+    # The split is reported with the photos of each group, and nothing links the rooms.
+    split = next((w for w in result.warnings if "separate groups" in w), f"no split warning in {result.warnings}")
+    kept = result.registered[0][0]
+    assert f"only the largest is used ({kept}00.png to {kept}04.png)" in split, split
+    for room in {"0", "1", "2"} - {kept}:
+        assert f"{room}00.png to {room}04.png (5 photos) is left out: where the capture passes from" in split, split
+    assert split.count("no photo pair links the two groups") == 2, split
 
 
 def test_fixed_intrinsics_sequential_matching_and_downscaling(room_photos):
