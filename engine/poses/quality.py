@@ -86,6 +86,27 @@ def quality_warnings(
     return warnings
 
 
+def min_group_size(photos: int) -> int:
+    """The fewest photos a group of them (an SfM model) must have to count: a quarter of the photos,
+    3 to 10 (COLMAP's default), so that a split is reported while COLMAP's strays are not."""
+    return max(3, min(10, photos // 4))
+
+
+def distinct_groups(groups: Sequence[Sequence[int]], min_size: int) -> list[list[int]]:
+    """Models' photos (largest first) without the photos a larger model already has, and without the
+    groups that leaves under `min_size`: COLMAP can return a stray model of two photos that the main
+    model also poses (seen on the demo room), which is no split."""
+    kept: list[list[int]] = []
+    seen: set[int] = set()
+    for group in groups:
+        rest = [int(i) for i in group if int(i) not in seen]
+        if kept and len(rest) < min_size:
+            continue
+        kept.append(rest)
+        seen.update(rest)
+    return kept
+
+
 def photo_runs(indices: Sequence[int], frame_names: Sequence[str], limit: int = 3) -> str:
     """The photos `indices` (capture order) as stretches: "a to b", "a to b and c", ..."""
     ordered = sorted(set(int(i) for i in indices))

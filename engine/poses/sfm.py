@@ -45,7 +45,7 @@ from .bends import Bend, find_bend
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .gravity import Alignment, KnownDistance, align_gravity_and_scale
 from .process import run_pose_job
-from .quality import quality_warnings, radial_corner_shift, significant_distortion
+from .quality import distinct_groups, min_group_size, quality_warnings, radial_corner_shift, significant_distortion
 
 MATCHERS = ("auto", "sequential", "exhaustive")
 INTRINSICS = ("auto", "fixed", "prior", "estimate")
@@ -197,9 +197,7 @@ def estimate_poses(
         "K": None if given_K is None else given_K.tolist(),
         "max_num_features": int(options.max_num_features),
         "num_threads": int(options.num_threads),
-        # When the photos split into groups, COLMAP silently drops groups smaller than this. Keep
-        # groups of a quarter of the photos (3 to 10, COLMAP's default) so the report names them.
-        "min_model_size": max(3, min(10, len(names) // 4)),
+        "min_model_size": min_group_size(len(names)),
     }
     try:
         result, xyz, rgb = run_pose_job(job, work, keep_work=True, task="structure from motion", progress=progress,
@@ -317,12 +315,14 @@ def _pose_result(
     frames: list[Frame] = [replace(f, pose=poses.get(i), K=K.copy()) for i, f in enumerate(capture.frames)]
     registered = [f.name for i, f in enumerate(capture.frames) if i in poses]
     unregistered = [f.name for i, f in enumerate(capture.frames) if i not in poses]
-    groups = [[index_of[name] for name in model] for model in result.get("model_images", [])]
+    groups = distinct_groups([[index_of[name] for name in model] for model in result.get("model_images", [])],
+                             min_group_size(len(names)))
+    model_sizes = [len(group) for group in groups] if groups else list(result["model_sizes"])
     links = [(index_of[a], index_of[b], int(n)) for a, b, n in result.get("group_links", [])]
     warnings = quality_warnings(
         num_images=len(frames),
         unregistered=unregistered,
-        model_sizes=result["model_sizes"],
+        model_sizes=model_sizes,
         reprojection_error_px=result["mean_reprojection_error"],
         num_points=len(xyz),
         groups=groups,
@@ -382,7 +382,7 @@ def _pose_result(
         capture=posed,
         registered=registered,
         unregistered=unregistered,
-        model_sizes=list(result["model_sizes"]),
+        model_sizes=model_sizes,
         matcher=matcher,
         camera_model=camera["model"] + (" (fixed)" if intrinsics == "fixed" else ""),
         K=K,

@@ -11,7 +11,8 @@ import pytest
 
 from engine.capture.model import Capture, Frame
 from engine.poses.prepare import SFM_NEVER, prepare_capture
-from engine.poses.quality import quality_warnings, radial_corner_shift, significant_distortion
+from engine.poses.quality import (distinct_groups, min_group_size, quality_warnings, radial_corner_shift,
+                                 significant_distortion)
 from fixtures_capture import perturbed_poses
 
 SAMPLE = Path(__file__).resolve().parents[3] / "samples" / "demo_room"
@@ -51,6 +52,16 @@ def test_a_split_walk_says_where_the_photos_part_and_how_little_linked_them():
     (warning,) = quality_warnings(146, [], [91, 55], 0.5, 5000, groups=[kept, left_out], links=links[2:],
                                   frame_names=names)
     assert "from frame_00053.jpg to frame_00054.jpg, no photo pair links the two groups" in warning
+
+
+def test_a_stray_model_of_photos_the_main_model_poses_is_no_split():
+    """COLMAP returned, beside the demo room's 36 photos, a model of two of them (31 and 33): that is
+    no group left out. A real second group keeps its own photos, minus any the main model has."""
+    assert distinct_groups([list(range(36)), [31, 33]], min_group_size(36)) == [list(range(36))]
+    assert distinct_groups([list(range(30)), [29, 30, 31, 32, 33]], 3) == [list(range(30)), [30, 31, 32, 33]]
+    assert min_group_size(36) == 9 and min_group_size(8) == 3 and min_group_size(146) == 10
+    assert quality_warnings(36, [], [36], 0.5, 5000, groups=[list(range(36))], links=[],
+                            frame_names=[f"{i:06d}.jpg" for i in range(36)]) == []
 
 
 def test_sixty_percent_registered_is_still_fine():
