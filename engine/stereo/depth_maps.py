@@ -22,14 +22,14 @@ from ..geometry.cameras import project_points, scale_intrinsics, world_to_camera
 from ..capture.images import load_resized, resized_size
 from .depth_filters import median_depth, remove_speckles
 from .options import MATCHER_PATCHMATCH, StereoOptions
-from .patchmatch_views import PatchMatchSchedule, PlaneMap, patchmatch_views
+from .patchmatch_views import PatchMatchSchedule, PlaneMap, cpu_workers, patchmatch_views
 from .plane_smoothing import smooth_along_planes
 from .source_views import scene_points, select_sources, select_sources_by_triangulation
 from .sweep import sweep_depth
 from .sparse_seed import sparse_seed_depth
+from .view_agreement import CONSISTENCY_NEIGHBOURS, adopt_confirmed_planes, filter_geometric, geometric_confirmations
 
 MIN_RANGE_POINTS = 30  # sparse points a view must see before its depth range is taken from them
-CONSISTENCY_NEIGHBOURS = 6  # references a depth is checked against (more when more confirmations are asked for)
 CONSISTENCY_RELATIVE_DEPTH = 0.02  # two depths agree within 2 % (stereo-evidence.md)
 
 
@@ -302,7 +302,10 @@ def _patchmatch_maps(
     for m in maps:
         speckles = remove_speckles(m.depth)
         m.depth[speckles], m.confidence[speckles] = 0.0, 0.0
-        if options.plane_smoothing:
+    if options.adopt_confirmed_planes:
+        adopt_confirmed_planes(maps, workers=cpu_workers(device))
+    if options.plane_smoothing:
+        for m in maps:
             m.depth = smooth_along_planes(m.depth, m.normal, m.K)
     stages["depth filter"] = time.perf_counter() - started
     return maps
@@ -333,73 +336,3 @@ def keep_confirmed(maps: list[DepthMap], candidates: list[np.ndarray], min_views
         drop = candidate[v, u] & (count < min_views)
         m.depth[v[drop], u[drop]] = 0.0
         m.confidence[v[drop], u[drop]] = 0.0
-
-
-GEOMETRIC_RELATIVE_DEPTH = 0.01  # OpenMVS / MVSNet: two depths agree within 1 %...
-GEOMETRIC_REPROJECTION_PX = 1.0  # ...the point comes back within 1 px...
-GEOMETRIC_NORMAL_DEG = 25.0  # ...and the normals within 25 deg (where both maps have normals)
-
-
-def filter_geometric(maps: list[DepthMap], min_views: int, relative_depth: float = GEOMETRIC_RELATIVE_DEPTH,
-                     reprojection_px: float = GEOMETRIC_REPROJECTION_PX, normal_deg: float = GEOMETRIC_NORMAL_DEG) -> None:
-    """Drop, in place, depths that fewer than `min_views` other maps confirm (`geometric_confirmations`)."""
-    for m, (v, u, count) in zip(maps, geometric_confirmations(maps, min_views, relative_depth, reprojection_px, normal_deg)):
-        drop = count < min_views
-        m.depth[v[drop], u[drop]] = 0.0
-        m.confidence[v[drop], u[drop]] = 0.0
-
-
-def geometric_confirmations(maps: list[DepthMap], min_views: int, relative_depth: float = GEOMETRIC_RELATIVE_DEPTH,
-                            reprojection_px: float = GEOMETRIC_REPROJECTION_PX, normal_deg: float = GEOMETRIC_NORMAL_DEG
-                            ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Per map, the rows v, columns u and confirmation counts (each (D,)) of its D depths. Another map
-    confirms a depth when the point projects into it, its depth there (nearest pixel) brought back into
-    this view lands within `reprojection_px` of the pixel and within `relative_depth` of the depth, and
-    (where both have normals) the normals agree within `normal_deg`. Checked against every other map
-    that shares the view's depth range, nearest camera first (CONSISTENCY_NEIGHBOURS or `min_views`)."""
-    if not maps:
-        return []
-    poses = np.stack([m.pose for m in maps])
-    neighbours = max(CONSISTENCY_NEIGHBOURS, min_views)
-    cos_limit = np.cos(np.radians(normal_deg))
-    counts = []
-    for a, m in enumerate(maps):
-        v, u = np.nonzero(m.depth > 0)
-        z = m.depth[v, u].astype(np.float64)
-        rays = np.linalg.inv(m.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
-        world = (m.pose[:3, :3] @ (rays * z) + m.pose[:3, 3:4]).T
-        normals_world = m.normal[v, u].astype(np.float64) @ m.pose[:3, :3].T if m.normal is not None else None
-        count = np.zeros(len(z), dtype=np.int64)
-        distance = np.linalg.norm(poses[:, :3, 3] - m.pose[:3, 3], axis=1)
-        distance[a] = np.inf
-        for b in np.argsort(distance)[:neighbours]:
-            if not np.isfinite(distance[b]):
-                continue
-            other = maps[int(b)]
-            cam = (world - other.pose[:3, 3]) @ other.pose[:3, :3]
-            zb = cam[:, 2]
-            front = zb > 1e-3
-            zs = np.where(front, zb, 1.0)
-            ub = other.K[0, 0] * cam[:, 0] / zs + other.K[0, 2]
-            vb = other.K[1, 1] * cam[:, 1] / zs + other.K[1, 2]
-            oh, ow = other.depth.shape
-            inside = front & (ub >= 0) & (ub < ow) & (vb >= 0) & (vb < oh)
-            col = np.clip(np.floor(ub).astype(np.int64), 0, ow - 1)
-            row = np.clip(np.floor(vb).astype(np.int64), 0, oh - 1)
-            found = np.where(inside, other.depth[row, col], 0.0).astype(np.float64)
-            # The other map's point at that pixel, back in this view.
-            back_rays = np.linalg.inv(other.K) @ np.stack([col + 0.5, row + 0.5, np.ones_like(found)])
-            back_world = (other.pose[:3, :3] @ (back_rays * found) + other.pose[:3, 3:4]).T
-            back = (back_world - m.pose[:3, 3]) @ m.pose[:3, :3]
-            zback = np.where(back[:, 2] > 1e-6, back[:, 2], 1.0)
-            ua = m.K[0, 0] * back[:, 0] / zback + m.K[0, 2]
-            va = m.K[1, 1] * back[:, 1] / zback + m.K[1, 2]
-            reprojected = np.hypot(ua - (u + 0.5), va - (v + 0.5))
-            agree = inside & (found > 0) & (back[:, 2] > 1e-6) & (np.abs(back[:, 2] - z) <= relative_depth * z) \
-                & (reprojected <= reprojection_px)
-            if normals_world is not None and other.normal is not None:
-                other_normals = other.normal[row, col].astype(np.float64) @ other.pose[:3, :3].T
-                agree &= np.sum(normals_world * other_normals, axis=1) >= cos_limit
-            count += agree
-        counts.append((v, u, count))
-    return counts

@@ -64,6 +64,12 @@ class StereoOptions:
     # Each PatchMatch depth smoothed along its neighbours' planes where they agree within 5 % (plane_smoothing.py):
     # SUN3D's depth-map normals within 30 deg 0.34 -> 0.48 (docs/experiments.md, "Depth maps smoothed along their planes").
     plane_smoothing: bool = True
+    # A depth no other map confirms takes the plane of a neighbour that other maps confirm
+    # (view_agreement.adopt_confirmed_planes): edge fattening, chance matches, maps that disagree by a
+    # few cm. Measured on recorded runs (docs/experiments.md, "Depths that take a confirmed neighbour's
+    # plane"): the corridor's stereo against its LiDAR within 5 cm, Off 0.364 -> 0.382, Room 0.355 ->
+    # 0.380; the demo room F 0.836 -> 0.838; SUN3D's Room 0.474 -> 0.466 with fewer floaters.
+    adopt_confirmed_planes: bool = True
     # A phone's depth sensor (Frame.sensor_depth, LiDAR) gives the maps of the keyframes that have it,
     # in place of stereo (sensor_maps.py); captures without sensor depth are unaffected.
     sensor_depth: bool = True
@@ -101,6 +107,8 @@ class StereoOptions:
             raise VortxError(f"PatchMatch sparse seed must be true or false, got {self.sparse_seed!r}")
         if not isinstance(self.planar_prior, bool):
             raise VortxError(f"PatchMatch planar prior must be true or false, got {self.planar_prior!r}")
+        if not isinstance(self.adopt_confirmed_planes, bool):
+            raise VortxError(f"PatchMatch adopt-confirmed-planes must be true or false, got {self.adopt_confirmed_planes!r}")
         if not isinstance(self.plane_smoothing, bool):
             raise VortxError(f"PatchMatch plane smoothing must be true or false, got {self.plane_smoothing!r}")
         if self.consistency_views < 0:
