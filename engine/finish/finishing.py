@@ -33,7 +33,7 @@ are attached after finishing by the reconstruction, so only positions, faces and
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Optional, Sequence
+from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 from scipy import ndimage
@@ -41,7 +41,7 @@ from scipy import ndimage
 from ..mesh_io import Mesh
 from ..meshops import compact, face_pieces, keep_faces, vertex_normals
 from ..observation import ADDED  # vertex attribute: 1 on faces the finishing added (not seen), 0 elsewhere
-from .free_space import DepthView, Votes, view_votes
+from .free_space import DepthView, Votes, view_votes, without_reflections
 from .furniture import WINDOW as FURNITURE_WINDOW
 from .furniture import find_furniture_planes, furniture_grid
 from .grid import RELIEF_MIN_AREA, PlaneGrid, flat_band, grid_mesh, local_shift, stretches_of_area
@@ -222,6 +222,19 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
     return grid
 
 
+def floor_extent(floor: StructuralPlane, centroids: np.ndarray, normals: np.ndarray, tolerance: float
+                 ) -> Callable[[np.ndarray], np.ndarray]:
+    """A test of points on the floor plane (N, 3) -> (N,) bool: within the rectangle, in the plane's axes,
+    of the faces lying on it and facing up (`centroids`, `normals` (F, 3)): where the room's floor is,
+    not past a wall's door."""
+    on = (np.abs(floor.distance(centroids)) <= tolerance) & (normals @ floor.normal > FLATTEN_COS)
+    if not on.any():
+        return lambda points: np.zeros(len(points), bool)
+    uv = floor.to_plane(centroids[on])
+    low, high = uv.min(axis=0), uv.max(axis=0)
+    return lambda points: np.all((floor.to_plane(points) >= low) & (floor.to_plane(points) <= high), axis=1)
+
+
 def over_floor(grid: PlaneGrid, floor: PlaneGrid, margin_cells: int = 2) -> np.ndarray:
     """(A, B) bool: which of `grid`'s cells lie over the floor's finished cells (grown by `margin_cells`)."""
     footprint = ndimage.binary_dilation(floor.keep, iterations=margin_cells)
@@ -385,6 +398,11 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
                            "up": [round(float(x), 4) for x in up]}
     stats: dict[str, Any] = {"mode": mode, "planes": [p.to_dict() for p in planes], **layout, **up_info,
                              "faces_in": int(len(faces))}
+    floor = next((p for p in planes if p.kind == FLOOR), None)
+    if floor is not None:  # what a glossy floor mirrors is no view through it
+        views, reflections = without_reflections(views, floor.distance,
+                                                  floor_extent(floor, centroids, face_normals, tolerance))
+        stats["reflections"] = reflections.to_dict()
 
     grids = []
     drop = np.zeros(len(faces), bool)

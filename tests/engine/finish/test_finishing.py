@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from engine.finish.finishing import beneath_cameras, finish_mesh, over_floor, plane_grid, typical_support
-from engine.finish.free_space import PlainDepthView, view_votes
+from engine.finish.free_space import REFLECTION_MAX_SHARE, PlainDepthView, view_votes, without_reflections
 from engine.finish.modes import FINISH_CLEAN, FINISH_OFF, FINISH_ROOM
 from engine.finish.planes import CEILING, FLOOR, WALL, StructuralPlane, camera_horizon_up, face_geometry, find_structural_planes, room_up
 from engine.geometry.depth_render import render_depth
@@ -489,3 +489,57 @@ def test_a_view_along_a_plane_does_not_hide_its_points_but_one_seeing_past_them_
     assert grazing.hidden[0] == 0 and grazing.in_view[0] == 1  # framed, but no say on the point
     farther = [PlainDepthView(np.full((48, 64), 20.0, np.float32), K, np.eye(4))]  # it saw past the point
     assert view_votes(point, farther, plane_normal=along).through[0] == 1
+
+
+def _mirrored(views, spot, radius, factor=1.5):
+    """The views with the floor around `spot` (within `radius`) seen `factor` times deeper: a glossy floor's
+    mirror image of what stands over it, below the floor."""
+    out = []
+    for view in views:
+        depth = np.array(view.depth, copy=True)
+        v, u = np.nonzero(np.isfinite(depth) & (depth > 0))
+        rays = np.stack([u + 0.5, v + 0.5, np.ones(len(u))], axis=1) @ np.linalg.inv(view.K).T
+        points = (rays * depth[v, u][:, None]) @ view.pose[:3, :3].T + view.pose[:3, 3]
+        on_spot = (np.abs(points[:, 2]) < 0.02) & (np.linalg.norm(points[:, :2] - spot[:2], axis=1) < radius)
+        depth[v[on_spot], u[on_spot]] *= factor
+        out.append(PlainDepthView(depth, view.K, view.pose))
+    return out
+
+
+def test_a_glossy_floors_mirror_image_is_no_view_through_the_floor(scene):
+    """Stereo matched a glossy floor's reflection, 50 % deeper than the floor, where the reconstruction has
+    a hole. Those depths say the views saw through the floor there; the floor was found with nothing below
+    it, so they are reflections: the hole is closed, on the plane, marked added."""
+    mesh, views, centres = scene
+    spot = np.array([3.6, 0.6, 0.0])  # floor that several photos frame (they frame it near the walls)
+    assert view_votes(spot[None], views).seen[0] >= 1
+    centroids = mesh.vertices[mesh.faces].mean(axis=1)
+    hole = (np.abs(centroids[:, 2]) < 0.03) & (np.linalg.norm(centroids[:, :2] - spot[:2], axis=1) < 0.2)
+    holed = Mesh(mesh.vertices, mesh.faces[~hole])
+    mirrored = _mirrored(views, spot, 0.2)
+    assert view_votes(spot[None], mirrored).contradicted()[0], "the mirror image says the view saw through the floor"
+
+    result = finish_mesh(holed, mirrored, centres, 0.04, FINISH_ROOM)
+
+    out = result.mesh
+    at_spot = _faces_near(out, spot, 0.12)
+    assert at_spot.sum() > 20
+    assert (out.attributes[ADDED][out.faces[at_spot]] > 0.5).all()
+    assert np.abs(out.vertices[out.faces[at_spot]][..., 2]).max() < 0.003
+    assert result.stats["reflections"]["left_out"] and result.stats["reflections"]["below_floor_depths"] > 0
+    # The views handed in are not changed.
+    assert view_votes(spot[None], mirrored).contradicted()[0]
+
+
+def test_much_seen_below_a_floor_keeps_every_vote(scene):
+    """When more than a small share of the depths lies below the floor, it is no floor's reflection (a wrong
+    floor, a gallery over a hall): every depth votes as it is."""
+    _, views, _ = scene
+    mirrored = _mirrored(views, np.array([2.0, 1.5, 0.0]), 3.0)  # the whole floor mirrored
+    everywhere = lambda points: np.ones(len(points), bool)  # noqa: E731
+    kept, reflections = without_reflections(mirrored, lambda points: points[:, 2], everywhere)
+    assert not reflections.left_out and reflections.below > REFLECTION_MAX_SHARE * reflections.depths
+    assert all(a is b for a, b in zip(kept, mirrored))
+    few, reflections = without_reflections(_mirrored(views, np.array([3.6, 0.6, 0.0]), 0.2), lambda points: points[:, 2],
+                                           everywhere)
+    assert reflections.left_out and all((view.depth >= 0).all() for view in few)
