@@ -27,6 +27,9 @@ from engine.geometry.depth_render import render_depth  # noqa: E402
 from engine.geometry.depth_render import shade  # noqa: E402
 
 
+NO_SURFACE_BGR = (60, 60, 170)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("capture", help="a posed capture (e.g. the output folder of `python -m engine poses`)")
@@ -55,7 +58,11 @@ def main(argv=None) -> int:
     for path in args.meshes:
         mesh = read_ply(path)
         vertices, faces = subdivide(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces))
-        panels.append(cv2.cvtColor(shade(render_depth(vertices, faces, K, frame.pose, size), K), cv2.COLOR_GRAY2BGR))
+        depth = render_depth(vertices, faces, K, frame.pose, size)
+        panel = cv2.cvtColor(shade(depth, K), cv2.COLOR_GRAY2BGR)
+        # No surface in red: shading draws a surface facing the camera nearly white, as white as nothing.
+        panel[~np.isfinite(depth)] = NO_SURFACE_BGR
+        panels.append(panel)
     for image, label in zip(panels, ["photo", *labels]):
         cv2.putText(image, label, (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (20, 20, 160), 1, cv2.LINE_AA)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
