@@ -9,7 +9,6 @@ reference a good baseline.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
 from typing import Optional, Sequence
 
 import cv2
@@ -27,32 +26,11 @@ from .plane_smoothing import smooth_along_planes
 from .source_views import scene_points, select_sources, select_sources_by_triangulation
 from .sweep import sweep_depth
 from .sparse_seed import sparse_seed_depth
+from .depth_map import DepthMap
 from .view_agreement import CONSISTENCY_NEIGHBOURS, adopt_confirmed_planes, filter_geometric, geometric_confirmations
 
 MIN_RANGE_POINTS = 30  # sparse points a view must see before its depth range is taken from them
 CONSISTENCY_RELATIVE_DEPTH = 0.02  # two depths agree within 2 % (stereo-evidence.md)
-
-
-@dataclass
-class DepthMap:
-    """One reference view's stereo result, at the stereo resolution."""
-
-    frame: int  # position in the frame list given to `estimate_depth_maps`
-    depth: np.ndarray  # (h, w) float32 metres (planar z), 0 = no depth
-    confidence: np.ndarray  # (h, w) float32 in [0, 1], 0 where no depth
-    K: np.ndarray  # (3, 3) float64 in pixels of `depth`
-    pose: np.ndarray  # (4, 4) float64 camera-to-world
-    sources: np.ndarray  # (S,) int64 positions of the source frames used
-    depth_range: tuple[float, float]  # (near, far) metres swept
-    normal: Optional[np.ndarray] = None  # (h, w, 3) float32 unit camera-frame normals (PatchMatch's planes), None for the sweep
-    # (metres, share of the depth) a point may lie off this map's depth and be the surface it saw
-    # (engine/finish/free_space.py's votes); None: stereo's accuracy
-    agreement: Optional[tuple[float, float]] = None
-
-    @property
-    def completeness(self) -> float:
-        """Share of pixels with a depth."""
-        return float((self.depth > 0).mean())
 
 
 def stereo_references(count: int, max_references: int) -> np.ndarray:

@@ -23,12 +23,11 @@ from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
-from typing import TYPE_CHECKING, Optional, Sequence
+from typing import Optional, Sequence
 
 import numpy as np
 
-if TYPE_CHECKING:  # depth_maps imports this module
-    from .depth_maps import DepthMap
+from .depth_map import DepthMap
 
 CONSISTENCY_NEIGHBOURS = 6  # references a depth is checked against (more when more confirmations are asked for)
 GEOMETRIC_RELATIVE_DEPTH = 0.01  # OpenMVS / MVSNet: two depths agree within 1 %...
