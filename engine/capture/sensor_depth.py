@@ -18,6 +18,7 @@ from typing import Optional
 import numpy as np
 
 from ..errors import CaptureError
+from ..geometry.cameras import pixels_to_world
 from .model import Frame, SensorDepth
 from .naming import name_list
 
@@ -146,9 +147,7 @@ def sensor_points(frames: list[Frame]) -> tuple[np.ndarray, np.ndarray]:
             continue
         sx, sy = w / frame.width, h / frame.height  # the depth map is the photo at another size
         K = frame.K * np.array([[sx], [sy], [1.0]])
-        z = depth[v, u].astype(np.float64)
-        rays = np.linalg.inv(K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
-        points.append((frame.pose[:3, :3] @ (rays * z) + frame.pose[:3, 3:4]).T)
+        points.append(pixels_to_world(u, v, depth[v, u], K, frame.pose))
         # Colours from an eighth-size decode of the photo: a point needs one pixel, not 1920 x 1440.
         bgr = cv2.imread(str(frame.image_path), cv2.IMREAD_REDUCED_COLOR_8)
         if bgr is None:

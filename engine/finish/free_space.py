@@ -22,7 +22,7 @@ from typing import Callable, Optional, Protocol, Sequence
 
 import numpy as np
 
-from ..geometry.cameras import scale_intrinsics
+from ..geometry.cameras import pixels_to_world, scale_intrinsics
 from ..mesh_io import Mesh
 from ..photo_sampling import occlusion_depth, points_in_view
 
@@ -210,9 +210,8 @@ def without_reflections(views: Sequence[DepthView], height_over_floor: Callable[
         has = np.isfinite(depth) & (depth > 0)
         v, u = np.nonzero(has)
         z = depth[v, u].astype(np.float64)
-        rays = np.stack([u + 0.5, v + 0.5, np.ones_like(z)], axis=1) @ np.linalg.inv(np.asarray(view.K, np.float64)).T
         pose = np.asarray(view.pose, np.float64)
-        points = (rays * z[:, None]) @ pose[:3, :3].T + pose[:3, 3]
+        points = pixels_to_world(u, v, z, view.K, pose)
         height = height_over_floor(points)
         camera_height = float(height_over_floor(pose[None, :3, 3])[0])
         under = np.flatnonzero(height < -margin)

@@ -57,6 +57,16 @@ def look_at(eye: Sequence[float], target: Sequence[float], up: Sequence[float] =
 # ----------------------------------------------------------------------------------- projection
 
 
+def pixels_to_world(u: np.ndarray, v: np.ndarray, depth: np.ndarray, K: np.ndarray, cam_to_world: np.ndarray
+                    ) -> np.ndarray:
+    """(N, 3) world points of pixels at columns u, rows v (each (N,), integers: their centres at +0.5)
+    with planar depths `depth` (N,) metres, through a pinhole K (3, 3) at `cam_to_world` (4, 4)."""
+    z = np.asarray(depth, np.float64)
+    rays = np.linalg.inv(np.asarray(K, np.float64)) @ np.stack([np.asarray(u) + 0.5, np.asarray(v) + 0.5, np.ones_like(z)])
+    pose = np.asarray(cam_to_world, np.float64)
+    return (pose[:3, :3] @ (rays * z) + pose[:3, 3:4]).T
+
+
 def world_to_camera(points: np.ndarray, cam_to_world: np.ndarray) -> np.ndarray:
     """World points (M, 3) -> camera coordinates: (M, 3) for one pose (4, 4), (V, M, 3) for poses (V, 4, 4)."""
     points = np.asarray(points, np.float64)

@@ -14,6 +14,7 @@ import numpy as np
 import torch
 
 from ..capture import Capture
+from ..geometry.cameras import pixels_to_world
 from ..jobs import CancelToken, ProgressCallback, check, report
 from ..stereo.depth_maps import estimate_depth_maps, stereo_references
 from ..stereo.fused_tsdf import fuse_depth_maps
@@ -93,9 +94,7 @@ def depth_points_box(maps: list[DepthMap], margin: float, stride: int = 4) -> Op
         if len(v) == 0:
             continue
         v, u = v * stride, u * stride
-        z = m.depth[v, u].astype(np.float64)
-        rays = np.linalg.inv(m.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
-        points.append((m.pose[:3, :3] @ (rays * z) + m.pose[:3, 3:4]).T)
+        points.append(pixels_to_world(u, v, m.depth[v, u], m.K, m.pose))
     if not points:
         return None
     lo, hi = evidence_box(np.concatenate(points))

@@ -17,7 +17,7 @@ import torch
 
 from ..capture import Frame
 from ..jobs import CancelToken, ProgressCallback, check, report
-from ..geometry.cameras import project_points, scale_intrinsics, world_to_camera
+from ..geometry.cameras import pixels_to_world, project_points, scale_intrinsics, world_to_camera
 from ..capture.images import load_resized, resized_size
 from .depth_filters import median_depth, remove_speckles
 from .options import MATCHER_PATCHMATCH, StereoOptions
@@ -184,8 +184,7 @@ def filter_consistent(maps: list[DepthMap], min_views: int) -> None:
         h, w = m.depth.shape
         v, u = np.nonzero(m.depth > 0)
         z = m.depth[v, u].astype(np.float64)
-        rays = np.linalg.inv(m.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
-        world = (m.pose[:3, :3] @ (rays * z) + m.pose[:3, 3:4]).T
+        world = pixels_to_world(u, v, z, m.K, m.pose)
         count = np.zeros(len(z), dtype=np.int64)
         for b in select_sources(poses, a, neighbours):
             other = maps[int(b)]

@@ -27,6 +27,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
+from ..geometry.cameras import pixels_to_world
 from .depth_map import DepthMap
 
 CONSISTENCY_NEIGHBOURS = 6  # references a depth is checked against (more when more confirmations are asked for)
@@ -78,8 +79,7 @@ def confirmations_at(maps: list[DepthMap], a: int, v: np.ndarray, u: np.ndarray,
     neighbours = max(CONSISTENCY_NEIGHBOURS, min_views)
     cos_limit = np.cos(np.radians(normal_deg))
     z = np.asarray(depth, dtype=np.float64)
-    rays = np.linalg.inv(m.K) @ np.stack([u + 0.5, v + 0.5, np.ones_like(z)])
-    world = (m.pose[:3, :3] @ (rays * z) + m.pose[:3, 3:4]).T
+    world = pixels_to_world(u, v, z, m.K, m.pose)
     normals_world = np.asarray(normal, dtype=np.float64) @ m.pose[:3, :3].T if normal is not None else None
     count = np.zeros(len(z), dtype=np.int64)
     distance = np.linalg.norm(poses[:, :3, 3] - m.pose[:3, 3], axis=1)
@@ -107,8 +107,7 @@ def confirmations_at(maps: list[DepthMap], a: int, v: np.ndarray, u: np.ndarray,
             continue
         col, row, found = col[near], row[near], found[near]
         # The other map's point at that pixel, back in this view.
-        back_rays = np.linalg.inv(other.K) @ np.stack([col + 0.5, row + 0.5, np.ones_like(found)])
-        back_world = (other.pose[:3, :3] @ (back_rays * found) + other.pose[:3, 3:4]).T
+        back_world = pixels_to_world(col, row, found, other.K, other.pose)
         back = (back_world - m.pose[:3, 3]) @ m.pose[:3, :3]
         zback = np.where(back[:, 2] > 1e-6, back[:, 2], 1.0)
         ua = m.K[0, 0] * back[:, 0] / zback + m.K[0, 2]

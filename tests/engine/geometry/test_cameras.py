@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from engine.geometry.cameras import (frustum_corners, intrinsics_at_stride, look_along, look_at, project_points,
+from engine.geometry.cameras import (frustum_corners, intrinsics_at_stride, look_along, look_at, pixels_to_world, project_points,
                                      project_points_torch, projection_matrix, scale_intrinsics)
 
 K = np.array([[100.0, 0.0, 64.0], [0.0, 90.0, 48.0], [0.0, 0.0, 1.0]])
@@ -65,3 +65,12 @@ def test_scale_intrinsics_and_stride_keep_numpy_and_tensors():
     assert np.allclose(batched.numpy(), half)
     at4 = intrinsics_at_stride(torch.from_numpy(K), 4)
     assert np.allclose(at4.numpy(), [[25, 0, 16], [0, 22.5, 12], [0, 0, 1]])
+
+
+def test_pixels_lifted_to_world_project_back_to_their_centres():
+    K = np.array([[500.0, 0, 320], [0, 480.0, 240], [0, 0, 1]])
+    pose = look_at(np.array([1.0, -2.0, 1.5]), np.array([0.5, 3.0, 0.8]))
+    u, v, depth = np.array([0, 17, 639]), np.array([0, 200, 479]), np.array([0.5, 2.0, 7.25])
+    points = pixels_to_world(u, v, depth, K, pose)
+    pu, pv, z = project_points(points, K, pose)
+    assert np.allclose(pu, u + 0.5) and np.allclose(pv, v + 0.5) and np.allclose(z, depth)
