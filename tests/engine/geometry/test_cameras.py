@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from engine.geometry.cameras import (frustum_corners, intrinsics_at_stride, look_along, look_at, pixels_to_world, project_points,
-                                     project_points_torch, projection_matrix, scale_intrinsics)
+from engine.geometry.cameras import (frustum_corners, intrinsics_at_stride, look_along, look_at, pixels_to_world,
+                                     project_points, project_points_torch, projection_matrix, scale_intrinsics)
 
 K = np.array([[100.0, 0.0, 64.0], [0.0, 90.0, 48.0], [0.0, 0.0, 1.0]])
 
