@@ -232,7 +232,12 @@ def floor_extent(floor: StructuralPlane, centroids: np.ndarray, normals: np.ndar
         return lambda points: np.zeros(len(points), bool)
     uv = floor.to_plane(centroids[on])
     low, high = uv.min(axis=0), uv.max(axis=0)
-    return lambda points: np.all((floor.to_plane(points) >= low) & (floor.to_plane(points) <= high), axis=1)
+
+    def inside(points: np.ndarray) -> np.ndarray:
+        at = floor.to_plane(points)
+        return np.all((at >= low) & (at <= high), axis=1)
+
+    return inside
 
 
 def over_floor(grid: PlaneGrid, floor: PlaneGrid, margin_cells: int = 2) -> np.ndarray:

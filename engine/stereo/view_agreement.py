@@ -27,7 +27,7 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..geometry.cameras import pixels_to_world
+from ..geometry.cameras import pixels_to_world, project_points
 from .depth_map import DepthMap
 
 CONSISTENCY_NEIGHBOURS = 6  # references a depth is checked against (more when more confirmations are asked for)
@@ -88,12 +88,9 @@ def confirmations_at(maps: list[DepthMap], a: int, v: np.ndarray, u: np.ndarray,
         if not np.isfinite(distance[b]):
             continue
         other = maps[int(b)]
-        cam = (world - other.pose[:3, 3]) @ other.pose[:3, :3]
-        zb = cam[:, 2]
+        ub, vb, zb = project_points(world, other.K, other.pose)
         front = zb > 1e-3
         zs = np.where(front, zb, 1.0)
-        ub = other.K[0, 0] * cam[:, 0] / zs + other.K[0, 2]
-        vb = other.K[1, 1] * cam[:, 1] / zs + other.K[1, 2]
         oh, ow = other.depth.shape
         inside = front & (ub >= 0) & (ub < ow) & (vb >= 0) & (vb < oh)
         col = np.clip(np.floor(ub).astype(np.int64), 0, ow - 1)
@@ -107,14 +104,9 @@ def confirmations_at(maps: list[DepthMap], a: int, v: np.ndarray, u: np.ndarray,
             continue
         col, row, found = col[near], row[near], found[near]
         # The other map's point at that pixel, back in this view.
-        back_world = pixels_to_world(col, row, found, other.K, other.pose)
-        back = (back_world - m.pose[:3, 3]) @ m.pose[:3, :3]
-        zback = np.where(back[:, 2] > 1e-6, back[:, 2], 1.0)
-        ua = m.K[0, 0] * back[:, 0] / zback + m.K[0, 2]
-        va = m.K[1, 1] * back[:, 1] / zback + m.K[1, 2]
+        ua, va, zback = project_points(pixels_to_world(col, row, found, other.K, other.pose), m.K, m.pose)
         reprojected = np.hypot(ua - (u[near] + 0.5), va - (v[near] + 0.5))
-        agree = (back[:, 2] > 1e-6) & (np.abs(back[:, 2] - z[near]) <= relative_depth * z[near]) \
-            & (reprojected <= reprojection_px)
+        agree = (zback > 1e-6) & (np.abs(zback - z[near]) <= relative_depth * z[near]) & (reprojected <= reprojection_px)
         if normals_world is not None and other.normal is not None:
             other_normals = other.normal[row, col].astype(np.float64) @ other.pose[:3, :3].T
             agree &= np.sum(normals_world[near] * other_normals, axis=1) >= cos_limit
