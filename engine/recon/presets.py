@@ -66,7 +66,7 @@ PRESETS: tuple[QualityPreset, ...] = (
         demo_seconds=11),
     QualityPreset(
         "standard", "Standard", {},
-        "The default settings: PatchMatch matcher (slanted planes per pixel), 200 px stereo photos, clean walls and floors",
+        "The default settings: PatchMatch matcher (slanted planes per pixel), 240 px stereo photos, clean walls and floors",
         demo_seconds=56),
     QualityPreset(
         "high", "High",

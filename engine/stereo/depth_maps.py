@@ -256,6 +256,7 @@ def _patchmatch_maps(
         sources[i] = [int(s) for s in chosen if tuple(sizes[s]) == tuple(sizes[i])]
     schedule = PatchMatchSchedule(scales=options.scales, window=options.pm_window, coarse_iterations=options.coarse_iterations,
                                   fine_iterations=options.fine_iterations, geometric_passes=options.geometric_passes,
+                                  geometric_weight=options.geometric_weight,
                                   seed_planes=options.seed_planes, planar_prior=options.planar_prior)
     local_image = lambda i: image(references[i])  # noqa: E731
     planes = patchmatch_views(list(range(len(references))), lambda i: sources[i], local_image, ref_poses, ranges,

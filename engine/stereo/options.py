@@ -1,6 +1,8 @@
 """The knobs of plane-sweep stereo. Starting points measured outside the product (stereo-evidence.md:
 160 px, 64 inverse-depth planes, 4 sources, 5 x 5 NCC, NCC >= 0.3); the defaults here were tuned on
-the demo sample with true poses (MODEL.md, docs/results.md): 200 px, 80 planes, 7 x 7 NCC, NCC >= 0.5."""
+the demo sample with true poses (MODEL.md, docs/results.md): 200 px, 80 planes, 7 x 7 NCC, NCC >= 0.5.
+PatchMatch, the default matcher, was tuned on real photos since (issue 44): 240 px, two iterations at
+120 px and one at 240, geometric weight 0.4."""
 
 from __future__ import annotations
 
@@ -19,7 +21,10 @@ class StereoOptions:
     # PatchMatch by default since issue 34: on real rooms its surfaces are clean (SUN3D: normals 0.31
     # against the sweep's 0.20, a third of the floaters) at about 2 s per keyframe on 2 cores.
     matcher: str = MATCHER_PATCHMATCH  # STEREO_MATCHERS
-    long_side: int = 200  # stereo image long side in pixels, independent of the network's image size
+    # Stereo image long side in pixels, independent of the network's image size. 240 with PatchMatch's
+    # lighter schedule below, not 200 with the heavier one: the same time, finer depth (docs/experiments.md,
+    # "Finer pixels, fewer iterations").
+    long_side: int = 240
     planes: int = 80  # depth hypotheses of the sweep, uniform in inverse depth
     refine_planes: int = 8  # hypotheses of each per-pixel refinement sweep over +-1 step of the previous (0 = off)
     refine_rounds: int = 1  # refinement sweeps (a second round measured no better on the demo sample)
@@ -44,9 +49,17 @@ class StereoOptions:
     # `long_side` and `consistency_views` (the geometric filter's agreeing views) are shared with the sweep.
     scales: int = 2  # image sizes, each half the next, ending at long_side
     pm_window: int = 9  # window side in pixels, sampled every 2nd pixel
-    coarse_iterations: int = 3
-    fine_iterations: int = 2
+    # Two coarse and one fine iteration at 240 px, not 3 and 2 at 200 px: SUN3D's maps within 5 % 0.663 ->
+    # 0.685 (3 and 2 at 240 px: 0.685 too, at 1.3x the time); the mesh's Finish Room F 0.469 -> 0.537 there,
+    # the corridor's 0.423 -> 0.430 against its LiDAR, the 200-frame room 0.730 -> 0.749, in about the
+    # time of before; the demo room 0.835 -> 0.822 (docs/experiments.md, "Finer pixels, fewer iterations").
+    coarse_iterations: int = 2
+    fine_iterations: int = 1
     geometric_passes: int = 1
+    # Cost per pixel of reprojection error into the sources' depth maps (ACMM: 0.2, capped at 3 px). 0.4
+    # at 240 px: SUN3D's maps within 5 % 0.675 -> 0.684, the corridor's Finish Room 0.423 -> 0.442 with
+    # 80 maps (docs/experiments.md, "Finer pixels, fewer maps").
+    geometric_weight: float = 0.4
     seed_planes: int = 0  # PatchMatch starts from a fronto-parallel sweep over this many planes at its coarsest scale (0 = random planes)
     # PatchMatch starts from the sparse points' triangulated depth where they cover a view (sparse_seed.py),
     # as OpenMVS does. Measured (docs/experiments.md, "A seed from the sparse points"): room_05002 F
@@ -111,5 +124,7 @@ class StereoOptions:
             raise VortxError(f"PatchMatch adopt-confirmed-planes must be true or false, got {self.adopt_confirmed_planes!r}")
         if not isinstance(self.plane_smoothing, bool):
             raise VortxError(f"PatchMatch plane smoothing must be true or false, got {self.plane_smoothing!r}")
+        if self.geometric_weight < 0:
+            raise VortxError(f"PatchMatch geometric weight cannot be negative, got {self.geometric_weight}")
         if self.consistency_views < 0:
             raise VortxError(f"stereo consistency views cannot be negative, got {self.consistency_views}")
