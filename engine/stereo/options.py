@@ -51,8 +51,9 @@ class StereoOptions:
     pm_window: int = 9  # window side in pixels, sampled every 2nd pixel
     # Two coarse and one fine iteration at 240 px, not 3 and 2 at 200 px: SUN3D's maps within 5 % 0.663 ->
     # 0.685 (3 and 2 at 240 px: 0.685 too, at 1.3x the time); the mesh's Finish Room F 0.469 -> 0.537 there,
-    # the 200-frame room 0.730 -> 0.749, in about the time of before; the corridor against its LiDAR and
-    # the demo room level within their run-to-run spread (docs/experiments.md, "Finer pixels, fewer iterations").
+    # the 200-frame room 0.730 -> 0.749, in about the time of before; the corridor against its LiDAR level
+    # within its run-to-run spread; the demo room's recorded run 0.836-0.840 -> 0.822, `make demo` 0.825 ->
+    # 0.828 (docs/experiments.md, "Finer pixels, fewer iterations").
     coarse_iterations: int = 2
     fine_iterations: int = 1
     geometric_passes: int = 1
