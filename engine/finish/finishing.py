@@ -23,8 +23,9 @@ A plane is applied only where the evidence agrees (issue 43): each grid follows 
 stands (`local_shift`: drift and slope put a real floor centimetres off any one plane), surface off it
 by more than its noise over a patch is relief and stays (`flat_band`, RELIEF_MIN_AREA), and surface
 behind a plane that cameras behind the plane saw where it is stays and refutes the plane there
-(`_seen_from_behind`: the next leg of a U-shaped corridor); only surface behind a plane that no view
-from behind it supports goes.
+(`_seen_from_behind`: the next leg of a U-shaped corridor), and so does surface behind a wall that
+views saw through the wall's openings (`_seen_through_openings`: a recess, the floor past a doorway);
+only surface behind a plane that no view supports there goes.
 
 Input and output are `engine.mesh_io.Mesh` in the engine's world (metres, Z up, or tilted: `planes.room_up`); colours and evidence
 are attached after finishing by the reconstruction, so only positions, faces and ADDED come out.
@@ -318,6 +319,33 @@ def _seen_from_behind(vertices: np.ndarray, faces: np.ndarray, behind: np.ndarra
     return seen
 
 
+def _seen_through_openings(vertices: np.ndarray, faces: np.ndarray, behind: np.ndarray, grid: PlaneGrid,
+                           views: Sequence[DepthView], min_views: int) -> np.ndarray:
+    """(F,) bool: which `behind` (F,) faces (vertices (V, 3), faces (F, 3)) behind a wall's grid are seen
+    where they are, each vertex by `min_views` views from the room's side whose rays cross the plane in
+    one of its openings (cells views saw through, grown by a cell): the floor of a recess or of the next
+    room past a doorway that the wall's extent spans. `blocks` judges such surface by the cell straight
+    in front of it, which is solid wall beside the opening; the views looked through the opening."""
+    plane = grid.plane
+    seen = np.zeros(len(faces), bool)
+    in_front = [view for view in views if plane.distance(np.asarray(view.pose, np.float64)[None, :3, 3])[0] > 0]
+    if not in_front or not behind.any() or not grid.open.any():
+        return seen
+    used, inverse = np.unique(faces[behind], return_inverse=True)
+    points = vertices[used]
+    opening = ndimage.binary_dilation(grid.open, iterations=1)
+    count = np.zeros(len(points), np.int32)
+    for view in in_front:
+        centre = np.asarray(view.pose, np.float64)[:3, 3]
+        rays = points - centre
+        towards = rays @ plane.normal  # < 0: the ray heads through the plane to the point behind it
+        t = -plane.distance(centre[None])[0] / np.where(towards < -1e-9, towards, -1e-9)
+        i, j, inside = grid.cells_of(plane.to_plane(centre + t[:, None] * rays))
+        count += (view_votes(points, [view]).seen > 0) & (towards < -1e-9) & inside & opening[i, j]
+    seen[behind] = (count[inverse.reshape(-1, 3)] >= min_views).all(axis=1)
+    return seen
+
+
 def _pieces_to_drop(mesh: Mesh, votes: Votes, min_views: int, small_min_views: int) -> tuple[np.ndarray, int, int]:
     """(drop (F,) bool, pieces, dropped pieces): a piece goes when few of its vertices are seen by
     `min_views` views (under SUPPORTED_SHARE of them and under SUPPORTED_VERTICES), when most of its
@@ -429,8 +457,12 @@ def finish_mesh(mesh: Mesh, views: Sequence[DepthView], camera_centres: np.ndarr
         # Hidden by the plane where it stands: no photo from the room sees there except through an opening.
         behind = (vertex_distance < -tolerance).all(axis=1) & grid.blocks(centroids)
         seen_there = behind & _seen_from_behind(vertices, faces, behind, plane, views, options.refuting_views)
-        supported_behind |= seen_there
-        drop |= behind & ~seen_there
+        through_opening = np.zeros_like(behind)
+        if plane.kind == WALL:
+            through_opening = behind & ~seen_there & _seen_through_openings(vertices, faces, behind & ~seen_there, grid,
+                                                                            views, options.refuting_views)
+        supported_behind |= seen_there | through_opening
+        drop |= behind & ~seen_there & ~through_opening
         grid.refute(centroids[seen_there])
         if mode == FINISH_ROOM:  # the plane's grid replaces the surface on it
             drop |= (np.abs(vertex_distance) <= tolerance).all(axis=1) & covered & ~grid.in_relief(centroids)
