@@ -115,6 +115,18 @@ def plane_depth(normals: Tensor, rho: Tensor, rays: Tensor) -> Tensor:
     return torch.where((cos > MIN_GRAZING_COS) & (depth > 0), depth, torch.zeros_like(depth))
 
 
+def window_warp_matrix(offsets: Tensor) -> Tensor:
+    """(6, 2M) matrix taking a pixel's affine warp (the Jacobian's columns d/du, d/dv and the centre, each
+    (x, y), flattened to 6) to its M window samples (x, y) at `offsets` (M, 2) (du, dv): one matrix
+    product for every pixel and source, sample m at du_m J_u + dv_m J_v + c."""
+    M = int(offsets.shape[0])
+    weights = torch.cat([offsets, torch.ones_like(offsets[:, :1])], -1)  # (M, 3) (du, dv, 1)
+    matrix = torch.zeros((3, 2, M, 2), dtype=offsets.dtype, device=offsets.device)
+    for axis in range(2):
+        matrix[:, axis, :, axis] = weights.T
+    return matrix.reshape(6, 2 * M)
+
+
 def plane_costs(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor, depths: Tensor, normals: Tensor,
                 geometric_weight: float = 0.0) -> Tensor:
     """(C, S, N) cost of C candidate planes at each of N pixels against each source: depths (C, N) at
@@ -132,7 +144,7 @@ def plane_costs(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor, dep
     g = (to_grid @ sources.K @ sources.translation[..., None])[..., 0]  # (S, 3)
     k0, k1 = ref.K_inv[:, 0], ref.K_inv[:, 1]
     Gk0, Gk1 = (G @ k0)[:, None, :], (G @ k1)[:, None, :]  # (S, 1, 3)
-    offsets_t = torch.cat([ref.offsets, torch.ones_like(ref.offsets[:, :1])], -1)  # (M, 3) (du, dv, 1)
+    warp_matrix = window_warp_matrix(ref.offsets)
     out = torch.empty((C, S, N), dtype=dtype, device=ref.image.device)
     # Pixels in chunks: a chunk's (S, chunk, M) intermediates stay in the CPU's cache, where the whole
     # image's (tens of MB each) went through memory at every step (measured 1.6x on 2 cores).
@@ -147,18 +159,18 @@ def plane_costs(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor, dep
         G_rays = rays @ G.transpose(1, 2)  # (S, n, 3)
         for c in range(C):
             out[c, :, part] = _candidate_costs(ref, sources, at, rays, weights, weighted_centred, variance, G, g, G_rays,
-                                               Gk0, Gk1, k0, k1, offsets_t, depths[c, part], normals[c, part],
+                                               Gk0, Gk1, k0, k1, warp_matrix, depths[c, part], normals[c, part],
                                                geometric_weight, worst)
     return out
 
 
 def _candidate_costs(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor, rays: Tensor, weights: Tensor,
                      weighted_centred: Tensor, variance: Tensor, G: Tensor, g: Tensor, G_rays: Tensor, Gk0: Tensor,
-                     Gk1: Tensor, k0: Tensor, k1: Tensor, offsets_t: Tensor, depth: Tensor, normal: Tensor,
+                     Gk1: Tensor, k0: Tensor, k1: Tensor, warp_matrix: Tensor, depth: Tensor, normal: Tensor,
                      geometric_weight: float, worst: float) -> Tensor:
     """(S, n) costs of one plane per pixel (depth (n,), normal (n, 3)) at `pixels` (n,): `plane_costs`'s
     inner step, with the per-pixel and per-source terms it prepared."""
-    S, N, M = len(sources), int(pixels.shape[0]), int(offsets_t.shape[0])
+    S, N, M = len(sources), int(pixels.shape[0]), int(warp_matrix.shape[1]) // 2
     centre = M // 2
     h, w = sources.images.shape[-2:]
     with stage("warp"):
@@ -184,7 +196,8 @@ def _candidate_costs(ref: ReferenceWindows, sources: SourceViews, pixels: Tensor
         centre_xy = c[..., :2] / z  # (S, N, 2)
         jacobian_u = (a[..., :2] - centre_xy * a[..., 2:]) / z
         jacobian_v = (b[..., :2] - centre_xy * b[..., 2:]) / z
-        grid = torch.einsum("mk,snck->snmc", offsets_t, torch.stack([jacobian_u, jacobian_v, centre_xy], dim=-1))  # (S, N, M, 2)
+        affine = torch.stack([jacobian_u, jacobian_v, centre_xy], dim=-2).reshape(S * N, 6)
+        grid = (affine @ warp_matrix).reshape(S, N, M, 2)
     with stage("sampling"):
         sampled = F.grid_sample(sources.images[:, None], grid, mode="bilinear", padding_mode="border",
                                 align_corners=False)[:, 0]  # (S, N, M)
@@ -217,13 +230,15 @@ def reprojection_error(ref: ReferenceWindows, sources: SourceViews, pixels: Tens
     row = v.floor().long().clamp(0, h - 1)
     inside = in_front & (u >= 0) & (u < w) & (v >= 0) & (v < h)
     source_depth = sources.depths.reshape(S, -1).gather(1, row * w + col)  # (S, N) nearest: no blending across edges
+    # The source pixel lifted to its own depth and moved into the reference, X = R^T (d K_s^-1 p - t),
+    # then projected, K X: one matrix for all of it, K R^T K_s^-1, and one offset, K R^T t.
+    to_ref = ref.K @ sources.rotation.transpose(1, 2)  # (S, 3, 3)
+    lift = to_ref @ torch.linalg.inv(sources.K)
+    offset = to_ref @ sources.translation[..., None]  # (S, 3, 1)
     pixel = torch.stack([u, v, torch.ones_like(u)], dim=-1)  # (S, N, 3)
-    source_points = (pixel @ torch.linalg.inv(sources.K).transpose(1, 2)) * source_depth[..., None]
-    # Back into the reference: X = R^T (X_s - t).
-    back = (source_points - sources.translation[:, None]) @ sources.rotation
-    zb = back[..., 2]
+    reprojected = (pixel @ lift.transpose(1, 2)) * source_depth[..., None] - offset.transpose(1, 2)  # (S, N, 3)
+    zb = reprojected[..., 2]  # K's last row is (0, 0, 1): the depth in the reference
     ok = inside & (source_depth > 0) & (zb > 1e-6)
-    reprojected = back @ ref.K.T
     reprojected = reprojected[..., :2] / torch.where(ok, zb, torch.ones_like(zb))[..., None]
     error = (reprojected - ref.centres[pixels][None]).norm(dim=-1)
     return torch.where(ok, error.clamp_max(MAX_REPROJECTION_PX), torch.full_like(error, MAX_REPROJECTION_PX))
