@@ -158,11 +158,11 @@ def _area_groups() -> list[tuple[int, int, int]]:
 _AREA_GROUPS = _area_groups()
 
 
-def _area_neighbours(ref: ReferenceWindows, pixels: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+def _area_neighbours(ref: ReferenceWindows, pixels: Tensor) -> tuple[Tensor, Tensor]:
     """The flat indices (A, N) of every propagation area's neighbours of `pixels` (the areas' offsets
-    concatenated, A = 80), whether each lies inside the image, and whether each area (8, N) has one
-    inside; computed once per reference and checkerboard colour, since the same pixels are updated
-    every iteration."""
+    concatenated, A = 80; H * W where the neighbour lies outside the image) and whether each area (8, N)
+    has one inside; computed once per reference and checkerboard colour, since the same pixels are
+    updated every iteration."""
     cache = ref.__dict__.setdefault("_area_neighbours", {})
     # A checkerboard colour or a subset of one (the planar prior's pixels): told apart by their count,
     # ends and sum, so a subset never reads a colour's neighbours.
@@ -176,25 +176,26 @@ def _area_neighbours(ref: ReferenceWindows, pixels: Tensor) -> tuple[Tensor, Ten
         inside = (nv >= 0) & (nv < H) & (nu >= 0) & (nu < W)
         area_has_one = torch.cat([inside[first:first + count * size].reshape(count, size, -1).any(1)
                                   for first, count, size in _AREA_GROUPS])
-        cache[key] = (nv.clamp(0, H - 1) * W + nu.clamp(0, W - 1), inside, area_has_one)
+        # Outside the image a neighbour reads the slot past the last pixel, which holds a prohibitive cost.
+        cache[key] = (torch.where(inside, nv.clamp(0, H - 1) * W + nu.clamp(0, W - 1), H * W), area_has_one)
     return cache[key]
 
 
 def _propagation_candidates(state: PlaneState, ref: ReferenceWindows, pixels: Tensor) -> tuple[Tensor, Tensor]:
     """For each of the 8 areas, the lowest-cost neighbour plane re-expressed at `pixels`:
     depths (8, N) (0 where none) and normals (8, N, 3)."""
-    neighbour, inside, found = _area_neighbours(ref, pixels)
+    neighbour, found = _area_neighbours(ref, pixels)
     N = int(pixels.shape[0])
-    cost = torch.where(inside, state.cost[neighbour], torch.full_like(neighbour, 10.0, dtype=state.cost.dtype))
+    cost = torch.cat([state.cost, state.cost.new_full((1,), 10.0)])[neighbour]  # (A, N)
     best = []
     for first, count, size in _AREA_GROUPS:
         rows = slice(first, first + count * size)
         # min(1).indices, not argmin: argmin over a middle axis is ~5x slower on the CPU (measured).
         pick = cost[rows].reshape(count, size, N).min(1).indices  # (count, N)
         best.append(neighbour[rows].reshape(count, size, N).gather(1, pick[:, None])[:, 0])
-    best_t = torch.cat(best)  # (8, N)
+    best_t = torch.cat(best).clamp_max(state.depth.shape[0] - 1)  # (8, N); an area with none inside is masked below
     normals = state.normal[best_t]  # (8, N, 3)
-    rho = state.depth[best_t] * (normals * ref.rays[best_t]).sum(-1)  # (8, N) the neighbours' plane offsets
+    rho = state.rho[best_t]  # (8, N) the neighbours' plane offsets
     rays = ref.rays[pixels]
     depths = plane_depth(normals.reshape(-1, 3), rho.reshape(-1),
                          rays[None].expand(len(best_t), -1, -1).reshape(-1, 3)).reshape(best_t.shape)
