@@ -25,11 +25,10 @@ from .settings import (ReconSettings, cli_flag, field_default, given_settings, m
 # (`python -m engine poses samples/demo_room/images`), then
 # `python -m engine reconstruct <posed> --quality NAME --out room.ply`: wall seconds on this project's
 # 2-core machine, idle, PatchMatch matching two references at once with one torch thread each. Measured
-# 2026-12-07 with PatchMatch's 240 px default and its lighter schedule: Preview 13 s (22 CPU s), Standard
-# 76 s (144 CPU s), High 131 s (249 CPU s); the same machine that day took 72 s for the previous Standard
-# (200 px) and 171 s for the previous High. It ran 10-30 % slower than on 2026-12-03, when Standard took
-# 56 s and High 124 s. Before PatchMatch ran references in parallel, Standard took 598 s beside other
-# jobs: torch's own thread pool stalled whenever another process held a core.
+# 2026-12-07 (session 37) with the window grid written contiguous: Preview 11 s (18 CPU s), Standard 63 s
+# (118 CPU s), High 92 s (173 CPU s); the code before took 10, 67 and 115 s the same hour (earlier that
+# day, on a machine 10-30 % slower: 13, 76 and 131 s). Before PatchMatch ran references in parallel,
+# Standard took 598 s beside other jobs: torch's own thread pool stalled whenever another process held a core.
 DEMO_MACHINE = "the demo room's 36 photos, 2 CPU cores"
 
 
@@ -65,16 +64,16 @@ PRESETS: tuple[QualityPreset, ...] = (
         # (docs/experiments.md, "A finished room"), and costs about a CPU second.
         {"stereo_matcher": MATCHER_FAST, "stereo_image_size": 160, "stereo_views": 16, "finish": FINISH_ROOM},
         "Fast matcher, 160 px stereo photos, 16 depth maps: a quick look at the room",
-        demo_seconds=13),
+        demo_seconds=11),
     QualityPreset(
         "standard", "Standard", {},
         "The default settings: PatchMatch matcher (slanted planes per pixel), 240 px stereo photos, clean walls and floors",
-        demo_seconds=76),
+        demo_seconds=63),
     QualityPreset(
         "high", "High",
         {"stereo_matcher": MATCHER_PATCHMATCH, "stereo_image_size": 320, "finish": FINISH_ROOM},
-        "PatchMatch matcher at 320 px stereo photos: finer depth on sharp photos, about 1.7x Standard's time",
-        demo_seconds=131),
+        "PatchMatch matcher at 320 px stereo photos: finer depth on sharp photos, about 1.5x Standard's time",
+        demo_seconds=92),
 )
 QUALITY_NAMES: tuple[str, ...] = tuple(p.name for p in PRESETS)
 DEFAULT_QUALITY = "standard"
