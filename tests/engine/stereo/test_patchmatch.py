@@ -12,7 +12,7 @@ import torch
 from engine.geometry.cameras import look_at
 from engine.stereo.depth_maps import DepthMap, filter_geometric
 from engine.stereo.patchmatch_views import PatchMatchSchedule, geometric_refinement, patchmatch_views, photometric_planes
-from engine.stereo.plane_cost import MAX_COST, ReferenceWindows, SourceViews, plane_costs
+from engine.stereo.plane_cost import MAX_COST, MAX_REPROJECTION_PX, ReferenceWindows, SourceViews, plane_costs, reprojection_error
 from engine.stereo.source_views import select_sources_by_triangulation
 
 SIZE = (96, 72)  # (w, h)
@@ -120,6 +120,36 @@ def test_the_geometric_term_is_zero_for_consistent_maps_and_grows_with_disagreem
     shifted = plane_costs(windows, sources_of(images, K, poses, ref, srcs, source_depths * 1.5), pixels, d[None], n[None], 1.0)
     # The source maps 50 % too deep: ~1.3 px of parallax at 0.1 m baseline, 2 m and an 80 px focal length.
     assert float((shifted - photometric).median()) > 0.8
+
+
+def test_the_reprojection_error_matches_a_float64_lift_and_projection() -> None:
+    images, K, poses = floor_views()
+    ref = 2
+    rng = np.random.default_rng(5)
+    windows = ReferenceWindows(torch.as_tensor(images[ref]), torch.as_tensor(K, dtype=torch.float32), 9)
+    w, h = SIZE
+    for s, yaw in ((0, 12.0), (4, -20.0)):  # sources turned against the reference, so R and R^T differ
+        c, t = np.cos(np.radians(yaw)), np.sin(np.radians(yaw))
+        poses[s, :3, :3] = np.array([[c, -t, 0.0], [t, c, 0.0], [0.0, 0.0, 1.0]]) @ poses[s, :3, :3]
+        source_depth = rng.uniform(1.0, 4.0, (h, w))
+        # Source pixels lifted to their depth and projected into the reference (float64); each is then
+        # checked from a reference pixel at most 1.5 px from where it lands, so the error is under the cap.
+        x, y = rng.uniform(0.0, w, 400), rng.uniform(0.0, h, 400)
+        depth = source_depth[np.floor(y).astype(int), np.floor(x).astype(int)]
+        ref_from_src = np.linalg.inv(poses[ref]) @ poses[s]
+        points = ref_from_src[:3, :3] @ (depth * np.linalg.solve(K, np.stack([x, y, np.ones_like(x)]))) + ref_from_src[:3, 3:]
+        seen = (K @ points)[:2] / points[2]
+        pixel = np.floor(seen + rng.uniform(-1.0, 1.0, seen.shape)).astype(int)
+        inside = (points[2] > 0) & (pixel[0] >= 0) & (pixel[0] < w) & (pixel[1] >= 0) & (pixel[1] < h)
+        assert inside.sum() > 50
+        expected = np.minimum(np.hypot(*(seen - (pixel + 0.5)))[inside], MAX_REPROJECTION_PX)
+        error = reprojection_error(
+            windows, sources_of(images, K, poses, ref, [s], source_depth[None]),
+            torch.as_tensor(pixel[1][inside] * w + pixel[0][inside]), torch.ones(int(inside.sum())),
+            torch.as_tensor(x[inside][None], dtype=torch.float32), torch.as_tensor(y[inside][None], dtype=torch.float32),
+            torch.ones((1, int(inside.sum())), dtype=torch.bool))[0].numpy()
+        assert np.median(expected) < 1.5
+        assert np.abs(error - expected).max() < 1e-3, np.abs(error - expected).max()
 
 
 def test_geometric_refinement_keeps_a_consistent_result() -> None:
