@@ -58,3 +58,36 @@ def test_a_reused_database_says_how_its_features_were_extracted(tmp_path):
     sfm_worker._features_path(database).write_text(json.dumps({"peak_threshold": sfm_worker.LOW_CONTRAST_PEAK_THRESHOLD}))
     assert sfm_worker._features_settings(database)["peak_threshold"] == sfm_worker.LOW_CONTRAST_PEAK_THRESHOLD
     assert sfm_worker._features_path(database).name == "database_features.json"
+
+
+def test_unmatched_images_are_numbered_by_name_and_matched_ones_keep_their_ids(tmp_path):
+    database = tmp_path / "database.db"
+    pycolmap.Database.open(str(database)).close()  # COLMAP's own schema
+    import sqlite3
+    # As extraction threads leave it: ids in the order the photos finished, not by name; photos 1 and 4
+    # (c.jpg, a.jpg) already matched, as a pose check's shared database has them.
+    finished = ["c.jpg", "e.jpg", "b.jpg", "a.jpg", "d.jpg"]
+    with sqlite3.connect(database) as con:
+        con.execute("INSERT INTO cameras VALUES (1, 1, 320, 240, ?, 0)", (np.zeros(4).tobytes(),))
+        con.execute("INSERT INTO rigs VALUES (1, 1, 0)")
+        for image_id, name in enumerate(finished, start=1):
+            con.execute("INSERT INTO images VALUES (?, ?, 1)", (image_id, name))
+            keypoints = np.full((image_id, 2), float(image_id), np.float32)  # each image's count is its first id
+            con.execute("INSERT INTO keypoints VALUES (?, ?, 2, ?)", (image_id, image_id, keypoints.tobytes()))
+            con.execute("INSERT INTO descriptors VALUES (?, 0, ?, 128, ?)", (image_id, image_id, bytes(128 * image_id)))
+            con.execute("INSERT INTO frames VALUES (?, 1)", (image_id,))
+            con.execute("INSERT INTO frame_data VALUES (?, ?, 1, 0)", (image_id, image_id))
+        con.execute("INSERT INTO matches VALUES (?, 0, 2, NULL)", (1 * sfm_worker.COLMAP_MAX_IMAGES + 4,))
+
+    sfm_worker.number_unmatched_images_by_name(database)
+
+    with sqlite3.connect(database) as con:
+        ids = dict(con.execute("SELECT name, image_id FROM images"))
+        first_id = {ids[name]: finished.index(name) + 1 for name in finished}
+        # The matched photos keep 1 and 4; the others take 2, 3 and 5 in name order.
+        assert ids == {"c.jpg": 1, "a.jpg": 4, "b.jpg": 2, "d.jpg": 3, "e.jpg": 5}
+        for image_id, rows in con.execute("SELECT image_id, rows FROM keypoints"):
+            assert rows == first_id[image_id]  # the features moved with their photo
+        for image_id, rows in con.execute("SELECT image_id, rows FROM descriptors"):
+            assert rows == first_id[image_id]
+        assert sorted(con.execute("SELECT frame_id, data_id FROM frame_data")) == [(i, i) for i in range(1, 6)]
