@@ -476,8 +476,18 @@ def number_unmatched_images_by_name(db_path: Path) -> None:
     triangulation and adjustment visit images by id, so without this the same photos and poses gave
     different tracks and refined poses from run to run (the 200-frame room: 17 neighbouring pairs
     swapped, 7,380-7,419 points). Images already matched (a pose check's shared database) keep theirs:
-    their pair ids and match columns are built on them."""
+    their pair ids and match columns are built on them.
+
+    Each image is its own frame, numbered as the image, in the rig of its own camera (COLMAP's
+    extraction writes them so; the triangulation checks the database's frames against the
+    reconstruction's). The frame moves with its image, rig and all: a phone capture's photos each
+    have their own camera and rig. A database not laid out so is left as it is."""
     with sqlite3.connect(db_path) as con:
+        frame_data = list(con.execute("SELECT frame_id, data_id FROM frame_data"))
+        frames = {f for (f,) in con.execute("SELECT frame_id FROM frames")}
+        images = {i for (i,) in con.execute("SELECT image_id FROM images")}
+        if any(f != d for f, d in frame_data) or frames != images or {d for _, d in frame_data} != images:
+            return
         matched: set[int] = set()
         for table in ("matches", "two_view_geometries"):
             for (pair_id,) in con.execute(f"SELECT pair_id FROM {table}"):
@@ -488,17 +498,13 @@ def number_unmatched_images_by_name(db_path: Path) -> None:
         if all(old == new for old, new in new_id.items()):
             return
         # Ids pass through a free range above every id in use: each id column is unique or a key.
-        shift = 1 + max(i for (i,) in con.execute("SELECT image_id FROM images"))
-        for old in new_id:
-            for table, column in (("images", "image_id"), ("keypoints", "image_id"), ("descriptors", "image_id")):
-                con.execute(f"UPDATE {table} SET {column} = ? WHERE {column} = ?", (old + shift, old))
-            # Each image is its own frame (one camera), numbered as the image (the triangulation checks
-            # the database's frames against the reconstruction's trivial ones).
-            con.execute("UPDATE frame_data SET data_id = ?, frame_id = ? WHERE data_id = ?", (old + shift, old + shift, old))
-        for old, new in new_id.items():
-            for table, column in (("images", "image_id"), ("keypoints", "image_id"), ("descriptors", "image_id")):
-                con.execute(f"UPDATE {table} SET {column} = ? WHERE {column} = ?", (new, old + shift))
-            con.execute("UPDATE frame_data SET data_id = ?, frame_id = ? WHERE data_id = ?", (new, new, old + shift))
+        shift = 1 + max(images)
+        id_columns = (("images", "image_id"), ("keypoints", "image_id"), ("descriptors", "image_id"), ("frames", "frame_id"))
+        for moves in ([(old, old + shift) for old in new_id], [(old + shift, new) for old, new in new_id.items()]):
+            for source, target in moves:
+                for table, column in id_columns:
+                    con.execute(f"UPDATE {table} SET {column} = ? WHERE {column} = ?", (target, source))
+                con.execute("UPDATE frame_data SET data_id = ?, frame_id = ? WHERE data_id = ?", (target, target, source))
 
 
 def _pinhole_params(K: list, sx: float, sy: float) -> list[float]:

@@ -87,6 +87,22 @@ def test_refining_the_same_photos_and_poses_again_gives_the_same_poses(demo_refi
         np.testing.assert_array_equal(a.pose, b.pose)
 
 
+def test_photos_each_with_their_own_intrinsics_are_refined_as_the_same_photos_sharing_one(demo_refinement):
+    # A phone export (ARKit, 3D Scanner App) gives every photo its own intrinsics, so COLMAP gives each its
+    # own camera and rig. Numbering the photos by name must move each photo's frame with its rig: the
+    # corridor's 146 photos failed with "Check failed: existing_frame.RigId() == frame.RigId()".
+    _, given, first = demo_refinement
+    frames = []
+    for k, (f, g) in enumerate(zip(first.capture.frames, given)):
+        K = f.K.copy()
+        K[:2, :2] *= 1.0 + 1e-5 * k  # a hundredth of a pixel apart: the photos' own, as a tracker reports them
+        frames.append(Frame(f.image_path, f.width, f.height, K, g))
+    own = refine_poses(Capture(SAMPLE / "images", "scannet", frames, metric=True), RefineOptions())
+    assert own.refined == first.refined
+    for a, b in zip(own.capture.frames, first.capture.frames):
+        assert rotation_angle_deg(a.pose[:3, :3].T @ b.pose[:3, :3]) < 0.05
+
+
 def test_a_wildly_wrong_pose_keeps_its_given_pose_and_is_reported(demo_refinement):
     truth, given, result = demo_refinement
     wild = result.capture.frames[WILD]

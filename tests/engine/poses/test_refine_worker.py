@@ -60,23 +60,29 @@ def test_a_reused_database_says_how_its_features_were_extracted(tmp_path):
     assert sfm_worker._features_path(database).name == "database_features.json"
 
 
-def test_unmatched_images_are_numbered_by_name_and_matched_ones_keep_their_ids(tmp_path):
+@pytest.mark.parametrize("camera_per_photo", [False, True], ids=["one camera", "a camera per photo"])
+def test_unmatched_images_are_numbered_by_name_and_matched_ones_keep_their_ids(tmp_path, camera_per_photo):
     database = tmp_path / "database.db"
     pycolmap.Database.open(str(database)).close()  # COLMAP's own schema
     import sqlite3
     # As extraction threads leave it: ids in the order the photos finished, not by name; photos 1 and 4
-    # (c.jpg, a.jpg) already matched, as a pose check's shared database has them.
+    # (c.jpg, a.jpg) already matched, as a pose check's shared database has them. A phone capture's
+    # photos each have their own intrinsics, so their own camera and rig.
     finished = ["c.jpg", "e.jpg", "b.jpg", "a.jpg", "d.jpg"]
+    camera_of = {name: (k + 1 if camera_per_photo else 1) for k, name in enumerate(finished)}
     with sqlite3.connect(database) as con:
-        con.execute("INSERT INTO cameras VALUES (1, 1, 320, 240, ?, 0)", (np.zeros(4).tobytes(),))
-        con.execute("INSERT INTO rigs VALUES (1, 1, 0)")
+        for camera in sorted(set(camera_of.values())):
+            con.execute("INSERT INTO cameras VALUES (?, 1, 320, 240, ?, 0)", (camera, np.full(4, camera, float).tobytes()))
+            con.execute("INSERT INTO rigs VALUES (?, ?, 1)", (camera, camera))
+            con.execute("INSERT INTO rig_sensors VALUES (?, ?, 1, NULL)", (camera, camera))
         for image_id, name in enumerate(finished, start=1):
-            con.execute("INSERT INTO images VALUES (?, ?, 1)", (image_id, name))
+            camera = camera_of[name]
+            con.execute("INSERT INTO images VALUES (?, ?, ?)", (image_id, name, camera))
             keypoints = np.full((image_id, 2), float(image_id), np.float32)  # each image's count is its first id
             con.execute("INSERT INTO keypoints VALUES (?, ?, 2, ?)", (image_id, image_id, keypoints.tobytes()))
             con.execute("INSERT INTO descriptors VALUES (?, 0, ?, 128, ?)", (image_id, image_id, bytes(128 * image_id)))
-            con.execute("INSERT INTO frames VALUES (?, 1)", (image_id,))
-            con.execute("INSERT INTO frame_data VALUES (?, ?, 1, 0)", (image_id, image_id))
+            con.execute("INSERT INTO frames VALUES (?, ?)", (image_id, camera))
+            con.execute("INSERT INTO frame_data VALUES (?, ?, ?, 1)", (image_id, image_id, camera))
         con.execute("INSERT INTO matches VALUES (?, 0, 2, NULL)", (1 * sfm_worker.COLMAP_MAX_IMAGES + 4,))
 
     sfm_worker.number_unmatched_images_by_name(database)
@@ -91,3 +97,9 @@ def test_unmatched_images_are_numbered_by_name_and_matched_ones_keep_their_ids(t
         for image_id, rows in con.execute("SELECT image_id, rows FROM descriptors"):
             assert rows == first_id[image_id]
         assert sorted(con.execute("SELECT frame_id, data_id FROM frame_data")) == [(i, i) for i in range(1, 6)]
+        # Each photo's frame sits in its own camera's rig, as the triangulation checks.
+        for name, image_id in ids.items():
+            assert con.execute("SELECT camera_id FROM images WHERE image_id = ?", (image_id,)).fetchone()[0] == camera_of[name]
+            rig = con.execute("SELECT rig_id FROM frames WHERE frame_id = ?", (image_id,)).fetchone()[0]
+            assert con.execute("SELECT ref_sensor_id FROM rigs WHERE rig_id = ?", (rig,)).fetchone()[0] == camera_of[name]
+            assert con.execute("SELECT sensor_id FROM frame_data WHERE data_id = ?", (image_id,)).fetchone()[0] == camera_of[name]
