@@ -26,7 +26,7 @@ Public API:
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
+from typing import Optional, Union
 
 import numpy as np
 
@@ -50,13 +50,14 @@ class Tracks:
 @dataclass
 class AdjustOptions:
     # None: camera centres held at the given ones; else the prior's standard deviation (world units,
-    # per axis) that ties each centre to its given position, weighed like one pixel of reprojection.
-    position_sigma: Optional[float] = None
+    # per axis) that ties each centre to its given position, weighed like one pixel of reprojection:
+    # one for every camera, or (C,) one per camera (a tiny one holds that camera's centre).
+    position_sigma: Optional[Union[float, np.ndarray]] = None
     # Each rotation is tied to its given one by a Gaussian prior of this many degrees, weighed like one
     # pixel of reprojection: far weaker than the photos wherever they constrain a rotation, it pins the
     # directions they leave free (with centres held along a straight stretch, turning every camera
     # about that line moves no centre: on the SUN3D room such a roll of 6-13 deg cost nothing).
-    rotation_sigma_deg: float = 2.0
+    rotation_sigma_deg: Union[float, np.ndarray] = 2.0  # or (C,) one per camera
     refine_focal: bool = False  # one focal scale per intrinsics group (a tracker's K can be a little off)
     loss_scale_px: float = 1.0  # Cauchy loss scale: residuals beyond this weigh less and less
     outlier_px: float = 4.0  # after a first solve, observations farther than this are dropped, then solved again
@@ -127,6 +128,11 @@ class _Problem:
         self.tracks = tracks
         self.options = options
         self.free_positions = options.position_sigma is not None
+        rotation_sigma = np.broadcast_to(np.radians(np.asarray(options.rotation_sigma_deg, dtype=np.float64)), (len(pose),))
+        self.rotation_prior = 1.0 / rotation_sigma ** 2  # (C,) per radian^2
+        if self.free_positions:  # (C,) 1 / sigma^2 of each camera's centre prior
+            sigma = np.broadcast_to(np.asarray(options.position_sigma, dtype=np.float64), (len(pose),))
+            self.position_prior = 1.0 / sigma ** 2
         self.per_camera = 6 if self.free_positions else 3
         self.focal_params = self.num_groups if options.refine_focal else 0
 
@@ -156,10 +162,10 @@ class _Problem:
         squared = np.sum(residual ** 2, axis=1)
         behind = y[:, 2] <= 1e-6
         total = float(np.sum(c2 * np.log1p(np.where(behind, 0.0, squared) / c2))) + float(behind.sum()) * 1e6
-        total += float(np.sum(self.rotation_offsets(rotation) ** 2)) / np.radians(self.options.rotation_sigma_deg) ** 2
+        total += float(np.sum(np.sum(self.rotation_offsets(rotation) ** 2, axis=1) * self.rotation_prior))
         if self.free_positions:
             centre = self.centre if centre is None else centre
-            total += float(np.sum((centre - self.given_centre) ** 2)) / self.options.position_sigma ** 2
+            total += float(np.sum(np.sum((centre - self.given_centre) ** 2, axis=1) * self.position_prior))
         return total
 
     def step(self, use: np.ndarray, damping: float, move_cameras: bool = True):
@@ -225,12 +231,12 @@ class _Problem:
         U = (Jc.T @ Jc).toarray()
         g_cam = Jc.T @ r_flat
         W = (Jc.T @ Jp).tocsr()  # (n_cam, 3P)
-        rotation_prior = 1.0 / np.radians(self.options.rotation_sigma_deg) ** 2
+        rotation_prior = np.repeat(self.rotation_prior, 3)
         index = (np.arange(num_cams)[:, None] * k + np.arange(3)[None]).ravel()
         U[index, index] += rotation_prior
         g_cam[index] += rotation_prior * self.rotation_offsets().ravel()
         if self.free_positions:
-            prior = 1.0 / self.options.position_sigma ** 2
+            prior = np.repeat(self.position_prior, 3)
             index = (np.arange(num_cams)[:, None] * k + np.arange(3, 6)[None]).ravel()
             U[index, index] += prior
             g_cam[index] += prior * (self.centre - self.given_centre).ravel()

@@ -46,7 +46,7 @@ from ..capture.naming import name_list
 from ..errors import PoseError
 from ..geometry.view_selection import DEFAULT_KEYFRAME_ANGLE_DEG, DEFAULT_KEYFRAME_TRANSLATION_M, select_keyframes
 from ..jobs import CancelToken, ProgressCallback, check, report
-from .adjust import Adjusted, AdjustOptions, Tracks, adjust, log_rotations, rodrigues
+from .adjust import Adjusted, AdjustOptions, Tracks, adjust, log_rotations, reprojection_errors, rodrigues
 from .align import rotation_angle_deg, umeyama
 from .process import run_pose_job
 from .resect import Resection, ResectOptions, point_correspondences, resect_rotation
@@ -62,6 +62,8 @@ FEATURE_MAX_SIDE = 480
 
 PASS_HELD = "camera positions held"
 PASS_PRIORS = "camera positions within priors"
+# A stretch that keeps its given centres in the second pass: its prior's sigma times this (5 cm -> 0.01 mm).
+HELD_SIGMA_SHARE = 2e-4
 
 
 @dataclass
@@ -96,12 +98,17 @@ class RefineOptions:
     retriangulate: bool = False
     retriangulation_error_deg: float = 0.0
     # Second pass: camera centres free within this prior (metres for metric captures, else a share of
-    # the trajectory's extent / 100 per unit); 0 skips the pass. Off by default: on the SUN3D room
-    # (2 cm) it lowered the reprojection error 0.73 -> 0.63 px but made the depth maps 7 % too shallow
-    # (depth within 5 % at their own scale 0.40 -> 0.35; docs/experiments.md).
-    position_sigma_m: float = 0.0
-    min_position_gain: float = 0.1  # the second pass is kept only when it lowers the error by this share more
-    max_stretch_scale_change: float = 0.02  # ... and no stretch's scale changes by more than this
+    # the trajectory's extent / 100 per unit); 0 skips the pass. Each stretch of the trajectory (split
+    # at jumps) whose scale the free centres change by more than `max_stretch_scale_change` keeps the
+    # first pass's poses; the others take the free ones, when that lowers their reprojection error by
+    # `min_position_gain`. Measured (docs/experiments.md, "Camera centres freed stretch by stretch"):
+    # the 200-frame render's rotation error against its truth 0.87 -> 0.66 deg median, centres 1.9 ->
+    # 1.2 cm off, F 0.720 -> 0.772; SUN3D's second stretch's depth maps 0.75-0.80 -> 0.83-0.88 within 5 %
+    # while its first, weakly linked stretch (rescaled 1.2 % when freed, its maps 0.39-0.53) keeps its
+    # poses. Freed everywhere (session 37) the first stretch's maps fell and SUN3D's F with them.
+    position_sigma_m: float = 0.05
+    min_position_gain: float = 0.1  # a freed stretch is kept only when it lowers its cameras' error by this share
+    max_stretch_scale_change: float = 0.005  # ... and the stretch's scale changes by no more than this
     # One focal scale per group of frames sharing intrinsics. Off: on the SUN3D room it moved the focal
     # 0.8-1.5 % for a 0.3 % lower reprojection error, too weakly determined to trust over a calibration.
     refine_focal: bool = False
@@ -470,18 +477,33 @@ def _adjusted(
         start_tracks = Tracks(tracks.camera[held.inlier], tracks.point[held.inlier], tracks.uv[held.inlier], held.points)
         free = adjust(Ks, groups, held.cam_from_world, start_tracks,
                       AdjustOptions(position_sigma=sigma, refine_focal=options.refine_focal))
+        freed = _stretches_in_scale(chosen_given, free, constrained, options.max_stretch_scale_change)
+        if 0 < freed.sum() < len(freed):
+            # The stretches the free centres rescale keep the first pass's poses: adjusted again with those
+            # held (priors a 5,000th of the free ones) and the others free as before. Held centres alone
+            # are not enough: the held stretch then turns about its line of centres (SUN3D: 2.5 deg,
+            # every depth 2-3 % deeper).
+            held_share = np.where(freed, 1.0, HELD_SIGMA_SHARE)
+            free = adjust(Ks, groups, held.cam_from_world, start_tracks,
+                          AdjustOptions(position_sigma=sigma * held_share,
+                                        rotation_sigma_deg=AdjustOptions.rotation_sigma_deg * held_share,
+                                        refine_focal=options.refine_focal))
         free_stretches = _stretch_scales(frames, chosen, chosen_given, free, start_tracks, constrained)
-        worst = max((abs(s.scale - 1.0) for s in free_stretches), default=0.0)
-        gain = 1.0 - free.error_adjusted_px / held.error_adjusted_px if held.error_adjusted_px > 0 else 0.0
-        if worst > options.max_stretch_scale_change:
-            notes.append(f"camera positions kept as given: freeing them within {_length(sigma, units)} would rescale a "
-                         f"stretch by {100 * worst:.1f} % (limit {100 * options.max_stretch_scale_change:g} %)")
+        gain = _position_gain(Ks, groups, held, free, start_tracks, freed)
+        if not freed.any():
+            notes.append(f"camera positions kept as given: freeing them within {_length(sigma, units)} would rescale "
+                         f"every stretch by more than {100 * options.max_stretch_scale_change:g} %")
         elif gain < options.min_position_gain:
             notes.append(f"camera positions kept as given: freeing them within {_length(sigma, units)} lowered the "
                          f"reprojection error only from {held.error_adjusted_px:.2f} to {free.error_adjusted_px:.2f} px")
         else:
             free.error_given_px = held.error_given_px  # the given poses' error on the first pass's observations
             best, adjustment, stretches = free, PASS_PRIORS, free_stretches
+            if not freed.all():
+                kept = [frames[int(c)].name for c in chosen[~freed]]
+                notes.append(f"camera positions kept as given for {len(kept)} frame(s) ({kept[0]} .. {kept[-1]}): "
+                             f"freeing them would rescale their stretch by more than "
+                             f"{100 * options.max_stretch_scale_change:g} %")
     report(progress, "poses: bundle adjustment", 2, 2)
     timings["adjust"] = time.perf_counter() - start
     start = time.perf_counter()
@@ -560,11 +582,8 @@ def _stretch_scales(frames: list[Frame], chosen: np.ndarray, given_c2w: np.ndarr
     """Scale of the adjusted camera centres against the given ones, per stretch (split where the capture
     jumps: a step over 10x the median step) and per connected group (frames linked by 20 or more
     shared inlier points), for parts of 3 or more constrained frames."""
-    centres = given_c2w[:, :3, 3]
     refined_c2w = np.stack([_cam_to_world(p) for p in adjusted.cam_from_world])
-    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
-    cut = np.flatnonzero(steps > 10.0 * max(float(np.median(steps)) if len(steps) else 0.0, 1e-9)) + 1
-    parts = [("stretch", part) for part in np.split(np.arange(len(chosen)), cut)]
+    parts = [("stretch", part) for part in _stretch_parts(given_c2w)]
     parts += [("group", part) for part in _covisible_groups(tracks, adjusted.inlier, len(chosen))]
     scales: list[StretchScale] = []
     seen: set[tuple[int, ...]] = set()
@@ -580,6 +599,38 @@ def _stretch_scales(frames: list[Frame], chosen: np.ndarray, given_c2w: np.ndarr
         scales.append(StretchScale(kind, frames[int(chosen[part[0]])].name, frames[int(chosen[part[-1]])].name,
                                    len(part), float(fit.scale)))
     return scales
+
+
+def _position_gain(Ks: np.ndarray, groups: np.ndarray, held: Adjusted, free: Adjusted, tracks: Tracks,
+                   freed: np.ndarray) -> float:
+    """Share by which the free centres lower the mean reprojection error of the freed cameras' observations
+    (`tracks`: the first pass's inliers; those both passes kept), each pass with its own points."""
+    mine = freed[tracks.camera] & free.inlier
+    if not mine.any():
+        return 0.0
+    before = reprojection_errors(Ks, held.focal_scale, groups, held.cam_from_world, held.points, tracks)[mine]
+    after = reprojection_errors(Ks, free.focal_scale, groups, free.cam_from_world, free.points, tracks)[mine]
+    return 1.0 - float(np.mean(after)) / float(np.mean(before)) if np.mean(before) > 0 else 0.0
+
+
+def _stretch_parts(given_c2w: np.ndarray) -> list[np.ndarray]:
+    """Indices of the stretches of a trajectory (C, 4, 4): split where it jumps, a step over 10x the median step."""
+    centres = given_c2w[:, :3, 3]
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    cut = np.flatnonzero(steps > 10.0 * max(float(np.median(steps)) if len(steps) else 0.0, 1e-9)) + 1
+    return np.split(np.arange(len(centres)), cut)
+
+
+def _stretches_in_scale(given_c2w: np.ndarray, adjusted, constrained: np.ndarray, max_change: float) -> np.ndarray:
+    """(C,) bool: cameras in a stretch (3 or more constrained frames) whose adjusted centres keep the given
+    scale within `max_change`; the others' stretches were rescaled (or are too short to tell)."""
+    refined = np.stack([_cam_to_world(p) for p in adjusted.cam_from_world])[:, :3, 3]
+    keep = np.zeros(len(given_c2w), dtype=bool)
+    for part in _stretch_parts(given_c2w):
+        measured = part[constrained[part]]
+        if len(measured) >= 3 and abs(umeyama(refined[measured], given_c2w[measured, :3, 3]).scale - 1.0) <= max_change:
+            keep[part] = True
+    return keep
 
 
 def _covisible_groups(tracks: Tracks, inlier: np.ndarray, cameras: int, min_shared: int = 20) -> list[np.ndarray]:

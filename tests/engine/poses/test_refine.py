@@ -7,6 +7,7 @@ frames between keyframes follow them) are checked on synthetic tracks, without C
 from __future__ import annotations
 
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -16,7 +17,7 @@ from engine.errors import PoseError
 from engine.poses import RefineOptions, fit_pose_similarity, refine_poses, rotation_angle_deg
 from engine.poses.adjust import Tracks, rodrigues
 from engine.poses.align import Similarity
-from engine.poses.refine import _adjusted, follow_keyframes, frames_to_adjust, neighbour_pairs
+from engine.poses.refine import _adjusted, _cam_from_world, _stretches_in_scale, follow_keyframes, frames_to_adjust, neighbour_pairs
 from fixtures_capture import perturbed_poses as perturbed, rotation_about
 from fixtures_tracks import K as TRACK_K, observe, ring_room
 
@@ -149,6 +150,27 @@ def test_rotations_a_few_degrees_off_still_triangulate_and_are_refined():
                 for k in range(len(names) - 1)]
     assert max(relative) < 0.3, relative
     assert result.error_given_px > 4.0 and result.mean_reprojection_error < 0.6
+
+
+def test_only_the_stretches_that_freed_centres_keep_in_scale_take_them():
+    """SUN3D's two fragments: freeing the centres rescaled the first, weakly linked one by 1.2 % (its depth
+    maps lost 0.1 within 5 %) and the second by 0.1 % (its maps gained 0.08). A stretch is split at a
+    jump in the given centres; it takes the free centres only within `max_change` of its given scale,
+    and a stretch with fewer than 3 constrained frames cannot tell, so keeps its own."""
+    walk = np.stack([np.eye(4) for _ in range(26)])
+    walk[:, 0, 3] = np.r_[np.arange(12) * 0.03, 3.0 + np.arange(12) * 0.03, 6.0, 6.03]  # jumps after 12 and 24
+    stretches = [np.arange(12), np.arange(12, 24), np.arange(24, 26)]
+    freed_walk = walk.copy()
+    for part, scale in zip(stretches, (1.012, 1.001, 1.0)):
+        centre = walk[part, :3, 3].mean(0)
+        freed_walk[part, :3, 3] = centre + scale * (walk[part, :3, 3] - centre) + [0.0, 0.004, 0.0]
+    adjusted = SimpleNamespace(cam_from_world=np.stack([_cam_from_world(p) for p in freed_walk]))
+    constrained = np.ones(26, dtype=bool)
+    freed = _stretches_in_scale(walk, adjusted, constrained, 0.005)
+    assert freed.tolist() == [False] * 12 + [True] * 12 + [False] * 2
+    assert _stretches_in_scale(walk, adjusted, constrained, 0.02).tolist() == [True] * 24 + [False] * 2
+    constrained[12:22] = False  # the second stretch's scale rests on two frames: not measured, not freed
+    assert not _stretches_in_scale(walk, adjusted, constrained, 0.02)[12:24].any()
 
 
 # --- the rules around the adjustment, on synthetic tracks (no COLMAP) -------------------------------
