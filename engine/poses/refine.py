@@ -109,6 +109,9 @@ class RefineOptions:
     position_sigma_m: float = 0.05
     min_position_gain: float = 0.1  # a freed stretch is kept only when it lowers its cameras' error by this share
     max_stretch_scale_change: float = 0.005  # ... and the stretch's scale changes by no more than this
+    # The free pass solves for 6 unknowns a camera instead of 3, in a dense (6C)^2 system: 500 cameras
+    # are 72 MB a matrix; beyond that the centres stay as given (a note says so).
+    max_free_frames: int = 500
     # One focal scale per group of frames sharing intrinsics. Off: on the SUN3D room it moved the focal
     # 0.8-1.5 % for a 0.3 % lower reprojection error, too weakly determined to trust over a calibration.
     refine_focal: bool = False
@@ -471,7 +474,10 @@ def _adjusted(
     chosen_given = given[chosen]
     best, adjustment, stretches = held, PASS_HELD, _stretch_scales(frames, chosen, chosen_given, held, tracks, constrained)
     notes: list[str] = []
-    if options.position_sigma_m > 0:
+    if options.position_sigma_m > 0 and len(chosen) > options.max_free_frames:
+        notes.append(f"camera positions kept as given: {len(chosen)} adjusted frames are more than the "
+                     f"{options.max_free_frames} whose positions the second pass frees (memory)")
+    elif options.position_sigma_m > 0:
         report(progress, "poses: bundle adjustment", 1, 2)
         sigma = options.position_sigma_m if capture.metric else options.position_sigma_m * extent / 100.0
         start_tracks = Tracks(tracks.camera[held.inlier], tracks.point[held.inlier], tracks.uv[held.inlier], held.points)
