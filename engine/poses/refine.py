@@ -14,8 +14,9 @@ So `refine_poses` takes the given poses as the gauge, as COLMAP's "known poses" 
    for the adjustment to turn the cameras by (optionally a second triangulation with the turned ones);
 3. bundle adjustment here (`adjust.py`): rotations, one focal scale per intrinsics group and the
    points, camera centres held at the given ones; then, as a second pass, the centres free within a
-   tight prior around the given ones, kept only when it lowers the reprojection error measurably and
-   no stretch of the trajectory changes scale by more than `max_stretch_scale_change`;
+   tight prior around the given ones, stretch by stretch: a stretch of the trajectory that it would
+   rescale by more than `max_stretch_scale_change` keeps the first pass's poses, the others take the
+   free centres when that lowers their reprojection error measurably;
 4. judged before it is used: unless the refined poses explain the photos better than the given ones
    (mean reprojection error lower by `min_gain`), the given poses are kept and the result says so;
 5. frames between keyframes follow their neighbouring keyframes' corrections (interpolated in
