@@ -472,21 +472,27 @@ def _extract(job: dict, db_path: Path, image_dir: Path, names: list[str], reader
 
 def number_unmatched_images_by_name(db_path: Path) -> None:
     """Renumber, in place, the database's images that no match refers to yet so that their ids follow
-    their names. COLMAP's extraction threads number the images in the order they finish, and the
-    triangulation and adjustment visit images by id, so without this the same photos and poses gave
-    different tracks and refined poses from run to run (the 200-frame room: 17 neighbouring pairs
-    swapped, 7,380-7,419 points). Images already matched (a pose check's shared database) keep theirs:
-    their pair ids and match columns are built on them.
+    their names, and give every image the frame of its own id. COLMAP's extraction threads number the
+    images (and, separately, their frames) in the order they finish, and the triangulation and
+    adjustment visit images by id, so without this the same photos and poses gave different tracks and
+    refined poses from run to run (the 200-frame room: 17 neighbouring pairs swapped, 7,380-7,419
+    points). Images already matched (a pose check's shared database) keep their ids: their pair ids and
+    match columns are built on them.
 
-    Each image is its own frame, numbered as the image, in the rig of its own camera (COLMAP's
-    extraction writes them so; the triangulation checks the database's frames against the
-    reconstruction's). The frame moves with its image, rig and all: a phone capture's photos each
-    have their own camera and rig. A database not laid out so is left as it is."""
+    The refinement's reconstruction gives each image a trivial frame numbered as the image, in its
+    camera's rig, and the triangulation checks the database's frame of that id against it. So each
+    image's frame is written with the image's id and the rig it was extracted in: a phone capture's
+    photos each have their own camera and rig, and a frame left behind sat in another photo's rig
+    ("Check failed: existing_frame.RigId() == frame.RigId()"). A database whose frames are not one
+    camera image each is left as it is."""
     with sqlite3.connect(db_path) as con:
-        frame_data = list(con.execute("SELECT frame_id, data_id FROM frame_data"))
-        frames = {f for (f,) in con.execute("SELECT frame_id FROM frames")}
-        images = {i for (i,) in con.execute("SELECT image_id FROM images")}
-        if any(f != d for f, d in frame_data) or frames != images or {d for _, d in frame_data} != images:
+        frame_data = list(con.execute("SELECT frame_id, data_id, sensor_id, sensor_type FROM frame_data"))
+        rig_of_frame = dict(con.execute("SELECT frame_id, rig_id FROM frames"))
+        camera_of = dict(con.execute("SELECT image_id, camera_id FROM images"))
+        one_each = (len({f for f, *_ in frame_data}) == len(frame_data) == len(rig_of_frame)
+                    and sorted(d for _, d, *_ in frame_data) == sorted(camera_of)
+                    and all(camera_of[d] == sensor for _, d, sensor, _ in frame_data))
+        if not one_each:
             return
         matched: set[int] = set()
         for table in ("matches", "two_view_geometries"):
@@ -495,16 +501,18 @@ def number_unmatched_images_by_name(db_path: Path) -> None:
         rows = [(i, n) for i, n in con.execute("SELECT image_id, name FROM images") if i not in matched]
         ids = sorted(i for i, _ in rows)
         new_id = {old: new for (old, _), new in zip(sorted(rows, key=lambda row: row[1]), ids)}
-        if all(old == new for old, new in new_id.items()):
-            return
+        moved = {old: new for old, new in new_id.items() if old != new}
         # Ids pass through a free range above every id in use: each id column is unique or a key.
-        shift = 1 + max(images)
-        id_columns = (("images", "image_id"), ("keypoints", "image_id"), ("descriptors", "image_id"), ("frames", "frame_id"))
-        for moves in ([(old, old + shift) for old in new_id], [(old + shift, new) for old, new in new_id.items()]):
-            for source, target in moves:
-                for table, column in id_columns:
-                    con.execute(f"UPDATE {table} SET {column} = ? WHERE {column} = ?", (target, source))
-                con.execute("UPDATE frame_data SET data_id = ?, frame_id = ? WHERE data_id = ?", (target, target, source))
+        shift = 1 + max(camera_of)
+        for source, target in [(old, old + shift) for old in moved] + [(old + shift, new) for old, new in moved.items()]:
+            for table in ("images", "keypoints", "descriptors"):
+                con.execute(f"UPDATE {table} SET image_id = ? WHERE image_id = ?", (target, source))
+        con.execute("DELETE FROM frame_data")
+        con.execute("DELETE FROM frames")
+        for frame, image, sensor, sensor_type in frame_data:
+            own = moved.get(image, image)
+            con.execute("INSERT INTO frames (frame_id, rig_id) VALUES (?, ?)", (own, rig_of_frame[frame]))
+            con.execute("INSERT INTO frame_data VALUES (?, ?, ?, ?)", (own, own, sensor, sensor_type))
 
 
 def _pinhole_params(K: list, sx: float, sy: float) -> list[float]:

@@ -65,24 +65,26 @@ def test_unmatched_images_are_numbered_by_name_and_matched_ones_keep_their_ids(t
     database = tmp_path / "database.db"
     pycolmap.Database.open(str(database)).close()  # COLMAP's own schema
     import sqlite3
-    # As extraction threads leave it: ids in the order the photos finished, not by name; photos 1 and 4
-    # (c.jpg, a.jpg) already matched, as a pose check's shared database has them. A phone capture's
-    # photos each have their own intrinsics, so their own camera and rig.
+    # As extraction threads leave it: ids in the order the photos finished, not by name, and the frames
+    # numbered in their own order; photos 1 and 4 (c.jpg, a.jpg) already matched, as a pose check's
+    # shared database has them. A phone capture's photos each have their own intrinsics, so their own
+    # camera and rig (rig ids apart from camera ids, as COLMAP may number them).
     finished = ["c.jpg", "e.jpg", "b.jpg", "a.jpg", "d.jpg"]
+    frame_of_image = {1: 2, 2: 1, 3: 3, 4: 5, 5: 4}
     camera_of = {name: (k + 1 if camera_per_photo else 1) for k, name in enumerate(finished)}
+    rig_of_camera = {camera: 10 + camera for camera in camera_of.values()}
     with sqlite3.connect(database) as con:
         for camera in sorted(set(camera_of.values())):
             con.execute("INSERT INTO cameras VALUES (?, 1, 320, 240, ?, 0)", (camera, np.full(4, camera, float).tobytes()))
-            con.execute("INSERT INTO rigs VALUES (?, ?, 1)", (camera, camera))
-            con.execute("INSERT INTO rig_sensors VALUES (?, ?, 1, NULL)", (camera, camera))
+            con.execute("INSERT INTO rigs VALUES (?, ?, 0)", (rig_of_camera[camera], camera))
         for image_id, name in enumerate(finished, start=1):
             camera = camera_of[name]
             con.execute("INSERT INTO images VALUES (?, ?, ?)", (image_id, name, camera))
             keypoints = np.full((image_id, 2), float(image_id), np.float32)  # each image's count is its first id
             con.execute("INSERT INTO keypoints VALUES (?, ?, 2, ?)", (image_id, image_id, keypoints.tobytes()))
             con.execute("INSERT INTO descriptors VALUES (?, 0, ?, 128, ?)", (image_id, image_id, bytes(128 * image_id)))
-            con.execute("INSERT INTO frames VALUES (?, ?)", (image_id, camera))
-            con.execute("INSERT INTO frame_data VALUES (?, ?, ?, 1)", (image_id, image_id, camera))
+            con.execute("INSERT INTO frames VALUES (?, ?)", (frame_of_image[image_id], rig_of_camera[camera]))
+            con.execute("INSERT INTO frame_data VALUES (?, ?, ?, 0)", (frame_of_image[image_id], image_id, camera))
         con.execute("INSERT INTO matches VALUES (?, 0, 2, NULL)", (1 * sfm_worker.COLMAP_MAX_IMAGES + 4,))
 
     sfm_worker.number_unmatched_images_by_name(database)
@@ -97,7 +99,7 @@ def test_unmatched_images_are_numbered_by_name_and_matched_ones_keep_their_ids(t
         for image_id, rows in con.execute("SELECT image_id, rows FROM descriptors"):
             assert rows == first_id[image_id]
         assert sorted(con.execute("SELECT frame_id, data_id FROM frame_data")) == [(i, i) for i in range(1, 6)]
-        # Each photo's frame sits in its own camera's rig, as the triangulation checks.
+        # Each photo's frame has the photo's id and sits in its own camera's rig, as the triangulation checks.
         for name, image_id in ids.items():
             assert con.execute("SELECT camera_id FROM images WHERE image_id = ?", (image_id,)).fetchone()[0] == camera_of[name]
             rig = con.execute("SELECT rig_id FROM frames WHERE frame_id = ?", (image_id,)).fetchone()[0]
