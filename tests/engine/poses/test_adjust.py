@@ -75,12 +75,12 @@ def test_position_priors_keep_a_weakly_linked_stretch_at_its_scale():
     assert np.abs(refined - given_centres).max() < 0.04
 
 
-def test_agrees_with_scipy_least_squares_on_a_small_problem():
-    """The same objective (pixel residuals + rotation prior, centres held, plain least squares) solved by
-    scipy's trust-region solver with numerical derivatives: the same rotations and points."""
-    rng = np.random.default_rng(11)
+def eight_neighbours(seed: int):
+    """Eight neighbouring cameras of the ring room (most points seen more than once), their tracks with
+    0.5 px noise, and given rotations 1 deg off: (rng, rotations, centres, tracks, given rotations)."""
+    rng = np.random.default_rng(seed)
     rotations, centres, points = ring_room(rng, cameras=60)
-    rotations, centres = rotations[:8], centres[:8]  # eight neighbours: most points seen more than once
+    rotations, centres = rotations[:8], centres[:8]
     points = points[rng.choice(len(points), 600, replace=False)]
     tracks, _ = observe(rotations, centres, points, rng, noise_px=0.5)
     used = np.unique(tracks.point)
@@ -88,6 +88,13 @@ def test_agrees_with_scipy_least_squares_on_a_small_problem():
     remap[used] = np.arange(len(used))
     tracks = Tracks(tracks.camera, remap[tracks.point], tracks.uv, points[used])
     given = rodrigues(rng.normal(0.0, np.radians(1.0), (8, 3))) @ rotations
+    return rng, rotations, centres, tracks, given
+
+
+def test_agrees_with_scipy_least_squares_on_a_small_problem():
+    """The same objective (pixel residuals + rotation prior, centres held, plain least squares) solved by
+    scipy's trust-region solver with numerical derivatives: the same rotations and points."""
+    rng, rotations, centres, tracks, given = eight_neighbours(11)
     options = AdjustOptions(loss_scale_px=1e6, outlier_px=1e9, max_iterations=100, tolerance=1e-14, refine_focal=False)
     ours = adjust(np.repeat(K[None], 8, 0), np.zeros(8, int), cam_from_world(given, centres), tracks, options)
 
@@ -111,16 +118,7 @@ def test_per_camera_priors_agree_with_scipy_least_squares():
     """Centres free within priors of their own, and rotation priors of their own (a tiny pair holds a
     camera, as the refinement holds a stretch that freeing would rescale): the same objective solved by
     scipy's trust-region solver gives the same cameras, and the held camera stays where it started."""
-    rng = np.random.default_rng(12)
-    rotations, centres, points = ring_room(rng, cameras=60)
-    rotations, centres = rotations[:8], centres[:8]
-    points = points[rng.choice(len(points), 600, replace=False)]
-    tracks, _ = observe(rotations, centres, points, rng, noise_px=0.5)
-    used = np.unique(tracks.point)
-    remap = -np.ones(len(points), int)
-    remap[used] = np.arange(len(used))
-    tracks = Tracks(tracks.camera, remap[tracks.point], tracks.uv, points[used])
-    given = rodrigues(rng.normal(0.0, np.radians(1.0), (8, 3))) @ rotations
+    rng, rotations, centres, tracks, given = eight_neighbours(12)
     given_centres = centres + rng.normal(0.0, 0.02, centres.shape)
     position_sigma = np.array([1e-5, 0.05, 0.05, 0.02, 0.05, 0.1, 0.05, 0.05])
     rotation_sigma_deg = np.array([4e-4, 2.0, 2.0, 2.0, 1.0, 2.0, 3.0, 2.0])
