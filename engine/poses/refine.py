@@ -496,13 +496,14 @@ def _adjusted(
                                         rotation_sigma_deg=AdjustOptions.rotation_sigma_deg * held_share,
                                         refine_focal=options.refine_focal))
         free_stretches = _stretch_scales(frames, chosen, chosen_given, free, start_tracks, constrained)
-        gain = _position_gain(Ks, groups, held, free, start_tracks, freed)
+        before_px, after_px = _freed_errors(Ks, groups, held, free, start_tracks, freed)
+        gain = 1.0 - after_px / before_px if before_px > 0 else 0.0
         if not freed.any():
             notes.append(f"camera positions kept as given: freeing them within {_length(sigma, units)} would rescale "
                          f"every stretch by more than {100 * options.max_stretch_scale_change:g} %")
         elif gain < options.min_position_gain:
             notes.append(f"camera positions kept as given: freeing them within {_length(sigma, units)} lowered the "
-                         f"reprojection error only from {held.error_adjusted_px:.2f} to {free.error_adjusted_px:.2f} px")
+                         f"reprojection error only from {before_px:.2f} to {after_px:.2f} px")
         else:
             free.error_given_px = held.error_given_px  # the given poses' error on the first pass's observations
             best, adjustment, stretches = free, PASS_PRIORS, free_stretches
@@ -608,16 +609,17 @@ def _stretch_scales(frames: list[Frame], chosen: np.ndarray, given_c2w: np.ndarr
     return scales
 
 
-def _position_gain(Ks: np.ndarray, groups: np.ndarray, held: Adjusted, free: Adjusted, tracks: Tracks,
-                   freed: np.ndarray) -> float:
-    """Share by which the free centres lower the mean reprojection error of the freed cameras' observations
-    (`tracks`: the first pass's inliers; those both passes kept), each pass with its own points."""
+def _freed_errors(Ks: np.ndarray, groups: np.ndarray, held: Adjusted, free: Adjusted, tracks: Tracks,
+                  freed: np.ndarray) -> tuple[float, float]:
+    """Mean reprojection error (px) of the freed cameras' observations with the held and with the free
+    centres, each pass with its own points (`tracks`: the first pass's inliers; those the free pass kept).
+    (0, 0) when no freed camera has one."""
     mine = freed[tracks.camera] & free.inlier
     if not mine.any():
-        return 0.0
+        return 0.0, 0.0
     before = reprojection_errors(Ks, held.focal_scale, groups, held.cam_from_world, held.points, tracks)[mine]
     after = reprojection_errors(Ks, free.focal_scale, groups, free.cam_from_world, free.points, tracks)[mine]
-    return 1.0 - float(np.mean(after)) / float(np.mean(before)) if np.mean(before) > 0 else 0.0
+    return float(np.mean(before)), float(np.mean(after))
 
 
 def _stretch_parts(given_c2w: np.ndarray) -> list[np.ndarray]:

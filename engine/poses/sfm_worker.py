@@ -492,7 +492,7 @@ def number_unmatched_images_by_name(db_path: Path) -> None:
         one_each = (len({f for f, *_ in frame_data}) == len(frame_data) == len(rig_of_frame)
                     and sorted(d for _, d, *_ in frame_data) == sorted(camera_of)
                     and all(camera_of[d] == sensor for _, d, sensor, _ in frame_data))
-        if not one_each:
+        if not camera_of or not one_each:
             return
         matched: set[int] = set()
         for table in ("matches", "two_view_geometries"):
