@@ -19,6 +19,14 @@ then averaged:
   the frame) where the mesh has a surface all the same: what the walk's other photos filled in. No
   truth says where that surface should be, so it is coverage, not accuracy.
 
+These per-pixel depths are strict on a walk: a wall seen at 70 deg from the ray is 3 cm off along its
+normal when its depth is 8.8 cm off. So the mesh is also scored as every room is (`engine eval`,
+SUN3D's protocol): against the LiDAR surface, the held-out frames' confident depth fused into a TSDF
+(`lidar_surface`: 4 cm voxels, the truth's observed voxels trimming both sides), Atlas precision,
+recall and F at 5 cm by nearest surface point, and the surface metrics (normal agreement, floaters,
+pieces, area ratio). Beside it, the room box fitted to that truth: the metric's floor on the same
+surface (a corridor's floor, ceiling and outer walls are most of its area).
+
 Both variants run by default (sensor depth on, then stereo alone), so each number stands beside its
 baseline measured the same way; the reconstruction's own flags (`--finish`, `--max-room-size`, ...)
 apply to both.
@@ -43,7 +51,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Optional
 
@@ -62,7 +70,13 @@ from ..poses.prepare import KEEP_POSES_HELP, SFM_IF_UNPOSED, prepare_capture
 from ..recon.driver import reconstruct
 from ..recon.presets import add_quality_argument, settings_from_quality_arguments
 from ..recon.settings import ReconSettings, add_setting_arguments
+from ..tsdf.integration import fuse_ground_truth
+from ..tsdf.volume import TsdfVolume
 from .against_truth import compare_poses
+from .cli import truth_tsdf_mesh
+from .mesh_metrics import evaluate_mesh
+from .room_box import room_box_from_tsdf
+from .surface_metrics import evaluate_surface
 
 MAX_TRUTH_DEPTH_M = 4.5  # a phone LiDAR's reliable range; beyond it the sensor is no truth
 AGREEMENT_M = 0.05
@@ -71,6 +85,19 @@ AGREEMENT_M = 0.05
 SAME_SURFACE_RATIO = 1.25
 MIN_RATIO_POINTS = 50
 NORMAL_AGREEMENT_DEG = 30.0
+# The LiDAR surface's grid: SUN3D's observed-space trim (4 cm, 12 cm band). SUN3D's truth mesh is fused
+# at 2 cm, but a 2 cm grid over the corridor's 20 x 32 m walk would hold 2 GB; at 4 cm it is 0.5 GB.
+TRUTH_VOXEL_M = 0.04
+TRUTH_TRUNCATION_M = 0.12
+
+
+@dataclass
+class LidarSurface:
+    """The held-out frames' LiDAR as one surface: `volume` their confident depth fused (its observed
+    voxels trim what is scored), `mesh` its zero level, both in the phone's world."""
+
+    volume: TsdfVolume
+    mesh: Mesh
 
 
 def split_capture(capture: Capture, every: int) -> tuple[Capture, list[Frame]]:
@@ -121,6 +148,31 @@ def compare_to_sensor(mesh: Mesh, frame: Frame, pose: np.ndarray) -> Optional[di
     }
 
 
+def lidar_surface(views: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> LidarSurface:
+    """The truth surface of `views`, each (depth (h, w) metres with 0 where it is no truth, K (3, 3) at
+    its size, camera-to-world pose (4, 4)), fused as SUN3D's sensor depth is (`fuse_ground_truth`)."""
+    depths, Ks, poses = zip(*views)
+    volume = fuse_ground_truth(list(depths), np.stack(Ks), np.stack(poses), voxel_size=TRUTH_VOXEL_M,
+                               trunc=TRUTH_TRUNCATION_M, depth_cap=MAX_TRUTH_DEPTH_M)
+    return LidarSurface(volume, truth_tsdf_mesh(volume))
+
+
+def held_out_surface(held: list[Frame]) -> LidarSurface:
+    """`lidar_surface` of the held-out frames' confident depth, at their own (the phone's) poses."""
+    views = []
+    for frame in held:
+        truth, _, confident, K = sensor_truth(frame)
+        views.append((np.where(confident, truth, 0.0).astype(np.float32), K, frame.pose))
+    return lidar_surface(views)
+
+
+def surface_scores(mesh: Mesh, truth: LidarSurface) -> dict[str, float]:
+    """Atlas metrics (acc, comp, prec, recall, fscore at 5 cm) and the surface metrics of `mesh`
+    against `truth`, both trimmed to the truth's observed voxels, as `engine eval` scores a room."""
+    return {**evaluate_mesh(mesh, truth.mesh, truth.volume).as_dict(),
+            **evaluate_surface(mesh, truth.mesh, truth.volume).as_dict()}
+
+
 def photo_depth_ratio(points: np.ndarray, views: list[tuple[Frame, np.ndarray]]) -> Optional[float]:
     """Median over `points` (N, 3) seen in `views` ((frame, 4 x 4 pose) with sensor depth) of the point's
     depth over the frame's confident LiDAR depth at its pixel, over the pairs within SAME_SURFACE_RATIO
@@ -153,9 +205,10 @@ def photos_alone(capture: Capture) -> Capture:
 
 
 def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, keep_poses: bool = False,
-                     progress=None, photos_only: bool = False) -> dict:
+                     progress=None, photos_only: bool = False, truth: Optional[LidarSurface] = None) -> dict:
     """Reconstruct `kept` as `engine reconstruct` does (pose check, refinement when off) with `settings`,
-    and compare the mesh with each held-out frame's LiDAR. `photos_only`: from `photos_alone(kept)`."""
+    and compare the mesh with each held-out frame's LiDAR, and with their surface (`truth`, built from
+    `held` when not given). `photos_only`: from `photos_alone(kept)`."""
     started = time.perf_counter()
     prepared = prepare_capture(photos_alone(kept) if photos_only else kept, sfm=SFM_IF_UNPOSED, check_poses=True,
                                refine_when_off=not keep_poses, progress=progress)
@@ -193,26 +246,47 @@ def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, 
     if not rows:
         raise VortxError("no held-out frame has confident sensor depth to compare with")
     mean = mean_of_rows(rows)
+    # The surface is the phone's; the mesh goes back there (identity for a metric capture).
+    in_phone_world = mesh if similarity is None else Mesh(
+        similarity.inverse().apply_points(mesh.vertices).astype(mesh.vertices.dtype), mesh.faces)
+    surface = surface_scores(in_phone_world, truth if truth is not None else held_out_surface(held))
     return {"sensor_depth": settings.sensor_depth and not photos_only, "photos_only": photos_only,
             "poses_found": poses_found, "settings": settings.to_dict(), "keep_poses": keep_poses,
             "poses_refined": prepared.refinement is not None, "frames_in": len(kept.frames), "held_out": len(rows),
-            "faces": int(len(mesh.faces)), "seconds": round(seconds, 1), "mean": mean, "frames": rows,
+            "faces": int(len(mesh.faces)), "seconds": round(seconds, 1), "mean": mean, "surface": surface,
+            "frames": rows,
             "photo_depth_ratio": ratio,
             "stereo": result.stats.get("stereo", {}), "finish": result.stats.get("finish", {}),
             "warnings": list(result.warnings)}
 
 
-def format_rows(results: list[dict]) -> str:
+def variant_name(result: dict) -> str:
+    return ("photos alone (SfM)" if result.get("photos_only") else "sensor depth" if result["sensor_depth"]
+            else "stereo alone")
+
+
+def format_rows(results: list[dict], box: Optional[dict] = None) -> str:
+    """The per-pixel table, then the table against the LiDAR surface (with `box`, the room box's
+    scores on it), then what the photos' geometry and SfM found."""
     lines = [f"{'variant':<22}{'within 5 cm':>12}{'rendered':>10}{'median err':>12}{'normals':>9}{'gaps filled':>13}"
              f"{'faces':>9}{'time':>8}"]
     for r in results:
         m = r["mean"]
-        name = "photos alone (SfM)" if r.get("photos_only") else "sensor depth" if r["sensor_depth"] else "stereo alone"
-        lines.append(f"{name:<22}{m['within_5cm']:>12.3f}{m['rendered']:>10.3f}{100 * m['median_error_m']:>10.1f}cm"
+        lines.append(f"{variant_name(r):<22}{m['within_5cm']:>12.3f}{m['rendered']:>10.3f}{100 * m['median_error_m']:>10.1f}cm"
                      f"{m['normals_30deg']:>9.3f}{m['gap_rendered']:>13.3f}{r['faces']:>9}{r['seconds']:>7.0f}s")
     if results:
         lines.append(f"gaps filled: of the held-out pixels where the sensor measured nothing "
                      f"({results[0]['mean']['gap_share']:.0%} of them), the share the mesh covers")
+    surface_rows = [(variant_name(r), r["surface"]) for r in results if r.get("surface")]
+    if box is not None:
+        surface_rows.append(("room box (fitted to it)", box))
+    if surface_rows:
+        lines.append(f"against the LiDAR surface (the held-out frames' confident depth fused at {100 * TRUTH_VOXEL_M:g} cm; "
+                     f"both trimmed to its observed voxels; 5 cm):")
+        lines.append(f"{'':<24}{'prec':>7}{'recall':>8}{'F':>7}{'normals':>9}{'floaters':>10}{'pieces':>8}{'area ratio':>12}")
+        for name, m in surface_rows:
+            lines.append(f"{name:<24}{m['prec']:>7.3f}{m['recall']:>8.3f}{m['fscore']:>7.3f}{m['normal_agreement']:>9.3f}"
+                         f"{m['floater_share']:>10.3f}{m['pieces']:>8}{m['area_ratio']:>12.3f}")
     ratio = next((r["photo_depth_ratio"] for r in results if r.get("photo_depth_ratio") is not None), None)
     if ratio is not None:
         lines.append(f"the photos' own geometry: points triangulated with the poses used lie at {ratio:.3f} of the "
@@ -257,15 +331,23 @@ def run(args: argparse.Namespace) -> int:
     if args.all_photos:
         kept = capture
     held = [f for f in held if f.sensor_depth is not None and f.pose is not None]
+    if not held:
+        raise VortxError(f"{args.capture}: no held-out frame has a pose and sensor depth to compare with")
     progress = TqdmProgress(disable=args.quiet)
     try:
         settings = settings_from_quality_arguments(args)
-        results = [evaluate_variant(kept, held, replace(settings, sensor_depth=v), args.keep_poses, progress, args.photos_only)
+        # Each variant fuses the truth after its reconstruction (6 s on the corridor), so its 0.5 GB grid
+        # never adds to a reconstruction's peak memory.
+        results = [evaluate_variant(kept, held, replace(settings, sensor_depth=v), args.keep_poses, progress,
+                                    args.photos_only)
                    for v in variants]
     finally:
         progress.close()
-    print(format_rows(results))
+    truth = held_out_surface(held)
+    box = surface_scores(room_box_from_tsdf(truth.volume), truth)
+    print(format_rows(results, box))
     if args.json:
-        args.json.write_text(json.dumps({"capture": str(args.capture), "every": args.every, "results": results},
+        args.json.write_text(json.dumps({"capture": str(args.capture), "every": args.every, "results": results,
+                                         "room_box": box},
                                         indent=1) + "\n")
     return 0

@@ -125,3 +125,55 @@ def test_the_photos_geometry_against_the_lidar_is_the_median_depth_ratio_on_the_
     world = in_camera @ frame.pose[:3, :3].T + frame.pose[:3, 3]
     assert photo_depth_ratio(world, [(frame, frame.pose)]) == pytest.approx(0.99, abs=1e-6)
     assert photo_depth_ratio(world[:20], [(frame, frame.pose)]) is None  # too few points to say
+
+
+def room_surface(lo: np.ndarray, hi: np.ndarray, cell: float = 0.1) -> Mesh:
+    """The six sides of the box [lo, hi] as `cell`-sized squares (rendered depth needs small triangles)."""
+    vertices, faces = [], []
+    for axis in range(3):
+        u_axis, v_axis = [a for a in range(3) if a != axis]
+        us = np.linspace(lo[u_axis], hi[u_axis], int(round((hi[u_axis] - lo[u_axis]) / cell)) + 1)
+        vs = np.linspace(lo[v_axis], hi[v_axis], int(round((hi[v_axis] - lo[v_axis]) / cell)) + 1)
+        u, v = np.meshgrid(us, vs, indexing="ij")
+        for side in (lo[axis], hi[axis]):
+            grid = np.zeros(u.shape + (3,))
+            grid[..., axis], grid[..., u_axis], grid[..., v_axis] = side, u, v
+            index = np.arange(u.size).reshape(u.shape) + sum(len(p) for p in vertices)
+            a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
+            vertices.append(grid.reshape(-1, 3))
+            faces += [np.column_stack([a, b, c]), np.column_stack([a, c, d])]
+    return Mesh(np.concatenate(vertices).astype(np.float32), np.concatenate(faces).astype(np.int32))
+
+
+def test_against_the_lidar_surface_a_room_3_cm_off_is_whole_and_10_cm_off_loses_exactly_the_walls_it_left():
+    from engine.eval.sensor_heldout import lidar_surface, surface_scores
+    from engine.geometry.depth_render import render_depth
+
+    lo, hi = np.array([-2.0, -1.5, 0.0]), np.array([2.0, 1.5, 2.5])
+    room = room_surface(lo, hi)
+    K = np.array([[110.0, 0, 128], [0, 110.0, 96], [0, 0, 1]])
+    views = []
+    for yaw in (0, 90, 180, 270):  # from the middle of the room at 1.25 m, looking at each wall
+        forward = np.array([np.cos(np.radians(yaw)), np.sin(np.radians(yaw)), 0.0])
+        right = np.cross(forward, [0, 0, 1.0])
+        pose = np.eye(4)
+        pose[:3, :3] = np.column_stack([right, [0, 0, -1.0], forward])  # OpenCV: x right, y down, z ahead
+        pose[:3, 3] = [0.0, 0.0, 1.25]
+        depth = render_depth(room.vertices, room.faces, K, pose, (256, 192))
+        views.append((np.where(np.isfinite(depth), depth, 0.0).astype(np.float32), K, pose))
+    truth = lidar_surface(views)
+
+    near = surface_scores(Mesh(room.vertices + np.float32([0.03, 0, 0]), room.faces), truth)
+    assert near["fscore"] > 0.97 and near["normal_agreement"] > 0.93  # the 4 cm truth bevels its corners
+
+    # 10 cm along x: the two end walls leave the truth; floor, ceiling and side walls slide within theirs.
+    # Independently: the share of the LiDAR's points that lie on the end walls.
+    points = np.concatenate([
+        (np.stack([(u + 0.5 - K[0, 2]) / K[0, 0] * d, (v + 0.5 - K[1, 2]) / K[1, 1] * d, d], 1) @ pose[:3, :3].T) + pose[:3, 3]
+        for depth, _, pose in views for v, u in [np.nonzero(depth > 0)] for d in [depth[v, u]]])
+    end_walls = float(np.mean(np.abs(np.abs(points[:, 0]) - 2.0) < 0.02))
+    assert 0.2 < end_walls < 0.5
+    far = surface_scores(Mesh(room.vertices + np.float32([0.10, 0, 0]), room.faces), truth)
+    assert far["recall"] == pytest.approx(1 - end_walls, abs=0.05)
+    assert far["prec"] < 1 - 0.5 * end_walls
+    assert far["normal_agreement"] > 0.93  # what is near the truth still faces as it does
