@@ -38,6 +38,7 @@ from typing import Any, Callable, Optional, Sequence
 
 import numpy as np
 from scipy import ndimage
+from scipy.spatial import cKDTree
 
 from ..mesh_io import Mesh
 from ..meshops import compact, face_pieces, keep_faces, vertex_normals
@@ -50,6 +51,7 @@ from .modes import FINISH_CLEAN, FINISH_MODES, FINISH_OFF, FINISH_ROOM
 from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_structural_planes, floor_up, room_up
 
 
+HIDDEN_OUTVOTED = 3  # views that saw a plane's cell for each one that saw something in front of it
 SNAP_DISTANCE = 0.6  # m: a plane's observed end this near a neighbouring wall is taken to that wall
 SUPPORTED_SHARE = 0.3  # of a piece's vertices seen by `min_views` views: the piece is supported
 VIEWS_PER_MIN_VIEW = 18  # depth maps per view a piece must be seen by
@@ -188,6 +190,11 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
     centres = grid.centres()
     inside_walls = np.ones(len(centres), bool)
     if plane.kind != WALL:  # the floor and ceiling stop at the walls, where a wall stands
+        cameras = np.stack([np.asarray(v.pose, np.float64)[:3, 3] for v in views]) if views else np.zeros((0, 3))
+        # ... unless the walk went on past it (through its door): a cell whose nearest camera stands on
+        # the wall's far side too is floor the walk crossed (the 3D Scanner App corridor's connecting
+        # leg lost its far half, 4.8 m of floor, to a door frame across it).
+        nearest = cKDTree(plane.to_plane(cameras)).query(plane.to_plane(centres))[1] if len(cameras) else None
         for wall in walls:
             along = wall.to_plane(centres)[:, 0]
             # The wall's own surface (faces turned its way), not the floor and ceiling along its line:
@@ -197,7 +204,10 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
             if len(wall_coords) == 0:
                 continue
             span = np.percentile(wall_coords, 1) - SNAP_DISTANCE, np.percentile(wall_coords, 99) + SNAP_DISTANCE
-            inside_walls &= ~((wall.distance(centres) < -cell) & (along >= span[0]) & (along <= span[1]))
+            beyond = (wall.distance(centres) < -cell) & (along >= span[0]) & (along <= span[1])
+            if nearest is not None:
+                beyond &= wall.distance(cameras[nearest]) > 0
+            inside_walls &= ~beyond
     grid.observed &= inside_walls.reshape(shape)
     votes: Votes = view_votes(centres, views, plane_normal=plane.normal)
     grid.free = votes.free().reshape(shape)
@@ -213,8 +223,11 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
             fillable |= beneath_cameras(plane, centres, views) & ~votes.contradicted() & inside_walls
             # A stretch some view saw something in front of is another room's, behind a wall (the inside
             # of a U-shaped corridor, whose inner walls are no room-box planes), unless something of
-            # this room stands over it below the cameras: the floor under a table or a chair closes.
-            fillable &= (votes.hidden == 0) | under_furniture(grid, centroids, views)
+            # this room stands over it below the cameras (the floor under a table or a chair closes), or
+            # three times as many views saw the floor itself there: a stray depth in front of a glossy
+            # floor's dip left 4,300 holes along the corridor's walk, each seen by 8 views (median).
+            fillable &= ((votes.hidden == 0) | (votes.seen >= HIDDEN_OUTVOTED * votes.hidden)
+                         | under_furniture(grid, centroids, views))
         grid.keep |= fillable.reshape(shape)
         # Closing holes, not inventing surface: an added stretch must touch surface that was seen.
         labels, count = ndimage.label(grid.keep)

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Optional
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 FLOOR, CEILING, WALL = "floor", "ceiling", "wall"
 
@@ -43,6 +44,7 @@ HISTOGRAM_BIN = 0.02  # m
 PEAK_WINDOW = 0.06  # m either side of a peak: the area that supports it
 MIN_PLANE_AREA = 0.3  # m^2 of surface a structural plane needs
 MIN_WALL_HEIGHT = 1.2  # m: a wall's surface spans at least this height (a counter's or a shelf's front does not)
+BACK_SIDE_SHARE = 0.5  # of a candidate wall's area whose nearest camera stands behind it: no wall of this room
 BEHIND_MARGIN = 0.2  # m behind a candidate wall before surface counts as "behind" it
 # Surface behind a wall across its span, as a share of the wall's own area: a cabinet front has more
 # wall behind it than its own area; a wall has at most what its windows and doors show of outside.
@@ -416,6 +418,18 @@ def seen_through_openings(wall_uz: np.ndarray, behind: np.ndarray, cameras: np.n
     return through
 
 
+def _seen_from_its_back(points: np.ndarray, areas: np.ndarray, cameras: np.ndarray, direction: np.ndarray,
+                        offset: float) -> bool:
+    """Whether most of a candidate wall's surface (`points` (N, 3) with `areas` (N,), up-aligned frame) has
+    its nearest camera (of `cameras` (C, 3), horizontally) behind the wall (direction . x < offset): the
+    photos that saw it best stood on its back side, so it is no wall of the room they stood in. On the 3D
+    Scanner App corridor the glass office fronts of the first leg, seen through from the walk, gave a
+    3.5 m^2 "wall" facing into the offices whose back cut the whole leg's floor from the floor plane."""
+    _, nearest = cKDTree(cameras[:, :2]).query(points[:, :2])
+    behind = cameras[nearest] @ direction < offset
+    return bool(areas[behind].sum() > BACK_SIDE_SHARE * areas.sum())
+
+
 def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centres: np.ndarray,
                            min_area: float = MIN_PLANE_AREA, up: Optional[np.ndarray] = None,
                            ) -> tuple[list[StructuralPlane], dict]:
@@ -511,6 +525,8 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
                     continue  # furniture, or an inner wall with room behind it
             if len(cameras) and np.median(cameras @ direction) < offset:
                 continue  # the cameras are behind it
+            if len(cameras) and _seen_from_its_back(centroids[facing][near], areas[facing][near], cameras, direction, offset):
+                continue
             if any(p.kind == WALL and p.normal @ direction > 0.99 and abs(p.offset - offset) < 2 * PEAK_WINDOW for p in planes):
                 continue  # the same wall again (its histogram has a broad top)
             planes.append(StructuralPlane(WALL, direction.copy(), offset, weight,

@@ -585,3 +585,42 @@ def test_the_next_rooms_floor_seen_through_the_door_stays_where_the_wall_beside_
     assert seen_past_the_wall.sum() >= 20  # the case exists in this scene
     assert kept(centres[seen_past_the_wall]).mean() > 0.9
     assert not kept(debris_v[debris_f].mean(axis=1)).any()
+
+
+def test_the_floor_past_a_door_the_walk_went_through_is_the_walks():
+    """A 10 m corridor with a wall across it at x = 5 and a 1 m door in it, walked from end to end: the
+    floor beyond the door is floor the cameras stood on, finished like the rest; the floor behind a wall
+    no camera went past stays out (the outer wall at y = 0 bounds it)."""
+    Z = 2.5
+    door = lambda s, t: 0.5 <= s < 1.5 and t < 2.1
+    parts = [
+        rectangle((0, 0, 0), (1, 0, 0), (0, 1, 0), 10.0, 2.0, (0, 0, 1)),
+        rectangle((0, 0, 0), (1, 0, 0), (0, 0, 1), 10.0, Z, (0, 1, 0)),  # y = 0
+        rectangle((0, 2, 0), (1, 0, 0), (0, 0, 1), 10.0, Z, (0, -1, 0)),  # y = 2
+        rectangle((5, 0, 0), (0, 1, 0), (0, 0, 1), 2.0, Z, (-1, 0, 0), skip=door),  # across, facing the start
+    ]
+    vertices, faces = merge(parts)
+    K = np.array([[60.0, 0, 48], [0, 60.0, 36], [0, 0, 1]])
+    poses = []
+    for x in np.arange(0.5, 10.0, 0.5):
+        for heading in (0.0, 180.0):
+            forward = np.array([np.cos(np.radians(heading)), np.sin(np.radians(heading)), -0.45])
+            forward /= np.linalg.norm(forward)
+            right = np.cross(forward, [0, 0, 1.0])
+            right /= np.linalg.norm(right)
+            pose = np.eye(4)
+            pose[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+            pose[:3, 3] = (x, 1.0, 1.5)
+            poses.append(pose)
+    views = [PlainDepthView(render_depth(vertices, faces, K, pose, (96, 72)), K, pose) for pose in poses]
+    floor = StructuralPlane(FLOOR, np.array([0.0, 0, 1]), 0.0, 20.0, np.array([[1.0, 0, 0], [0, 1.0, 0]]))
+    across = StructuralPlane(WALL, np.array([-1.0, 0, 0]), -5.0, 4.0, np.array([[0, -1.0, 0], [0, 0, 1.0]]))
+    outer = StructuralPlane(WALL, np.array([0.0, 1, 0]), 0.0, 25.0, np.array([[1.0, 0, 0], [0, 0, 1.0]]))
+    centroids, areas, normals = face_geometry(vertices, faces)
+    grid = plane_grid(floor, [floor, across, outer], centroids, areas, normals, floor.distance(centroids), 0.08, 0.04,
+                      views, fill=True)
+    a, b = np.meshgrid(grid.origin[0] + (np.arange(grid.keep.shape[0]) + 0.5) * grid.cell,
+                       grid.origin[1] + (np.arange(grid.keep.shape[1]) + 0.5) * grid.cell, indexing="ij")
+    corridor = (b > 0.1) & (b < 1.9)
+    assert grid.keep[corridor & (a > 0.2) & (a < 4.8)].mean() > 0.95
+    assert grid.keep[corridor & (a > 5.2) & (a < 9.8)].mean() > 0.95  # past the door

@@ -107,3 +107,29 @@ def test_a_table_over_a_floor_barely_seen_is_not_the_floor():
     planes, _ = find_structural_planes(vertices, faces, np.array([[0.7, -1.0, 1.6], [1.5, -1.2, 1.5]]))
     floor = next(p for p in planes if p.kind == FLOOR)
     assert abs(floor.offset) < 0.03
+
+
+def test_a_glass_front_seen_from_its_back_is_no_wall_of_the_leg_beside_it():
+    """Two parallel 2 m corridors 3 m apart (photos along y = 1 and y = 6) with nothing between them but
+    a framed glass front at y = 2.2 whose stereo surface faces the far corridor (its frames and
+    transoms, as the 3D Scanner App corridor's office fronts came out): seen through its openings from
+    the far leg, it passes as a wall facing +y, and its back would cut the near leg's floor. The
+    photos nearest it stood behind it, so it is none."""
+    from fixtures_box_room import merge, rectangle
+
+    Z = 2.5
+    glass_pane = lambda s, t: (s % 1.0) > 0.15 and t < 2.0  # 15 cm mullions every metre, a transom above 2 m
+    parts = [
+        rectangle((0, 0, 0), (1, 0, 0), (0, 1, 0), 8.0, 2.0, (0, 0, 1)),  # near leg's floor (no ceiling: stereo's is sparse)
+        rectangle((0, 0, 0), (1, 0, 0), (0, 0, 1), 8.0, Z, (0, 1, 0)),  # its outer wall, y = 0
+        rectangle((0, 5, 0), (1, 0, 0), (0, 1, 0), 8.0, 2.0, (0, 0, 1)),  # far leg's floor
+        rectangle((0, 5, Z), (1, 0, 0), (0, 1, 0), 8.0, 2.0, (0, 0, -1)),
+        rectangle((0, 7, 0), (1, 0, 0), (0, 0, 1), 8.0, Z, (0, -1, 0)),  # its outer wall, y = 7
+        rectangle((0, 2.2, 0), (1, 0, 0), (0, 0, 1), 8.0, Z, (0, 1, 0), skip=glass_pane),  # the glass front's back
+    ]
+    vertices, faces = merge(parts)
+    cameras = np.array([(x, y, 1.5) for y in (1.0, 6.0) for x in np.arange(0.5, 8.0, 0.5)])
+    planes, _ = find_structural_planes(vertices, faces, cameras)
+    walls = [(tuple(np.round(p.normal, 3)), round(p.offset, 2)) for p in planes if p.kind == WALL]
+    assert ((0.0, 1.0, 0.0), 0.0) in walls and ((0.0, -1.0, 0.0), -7.0) in walls  # both outer walls
+    assert not any(normal[1] > 0.99 and abs(offset - 2.2) < 0.1 for normal, offset in walls), walls
