@@ -51,6 +51,7 @@ from .modes import FINISH_CLEAN, FINISH_MODES, FINISH_OFF, FINISH_ROOM
 from .planes import CEILING, FLOOR, WALL, StructuralPlane, face_geometry, find_structural_planes, floor_up, room_up
 
 
+FLOOR_REACH_QUANTILE = 0.99  # of the seen floor's distances from the nearest camera: how far floor is added
 HIDDEN_OUTVOTED = 3  # views that saw a plane's cell for each one that saw something in front of it
 SNAP_DISTANCE = 0.6  # m: a plane's observed end this near a neighbouring wall is taken to that wall
 SUPPORTED_SHARE = 0.3  # of a piece's vertices seen by `min_views` views: the piece is supported
@@ -194,7 +195,8 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
         # ... unless the walk went on past it (through its door): a cell whose nearest camera stands on
         # the wall's far side too is floor the walk crossed (the 3D Scanner App corridor's connecting
         # leg lost its far half, 4.8 m of floor, to a door frame across it).
-        nearest = cKDTree(plane.to_plane(cameras)).query(plane.to_plane(centres))[1] if len(cameras) else None
+        camera_distance, nearest = (cKDTree(plane.to_plane(cameras)).query(plane.to_plane(centres)) if len(cameras)
+                                    else (None, None))
         for wall in walls:
             along = wall.to_plane(centres)[:, 0]
             # The wall's own surface (faces turned its way), not the floor and ceiling along its line:
@@ -228,6 +230,11 @@ def plane_grid(plane: StructuralPlane, planes: Sequence[StructuralPlane], centro
             # floor's dip left 4,300 holes along the corridor's walk, each seen by 8 views (median).
             fillable &= ((votes.hidden == 0) | (votes.seen >= HIDDEN_OUTVOTED * votes.hidden)
                          | under_furniture(grid, centroids, views))
+        if plane.kind == FLOOR and camera_distance is not None and grid.observed.any():
+            # Floor further from the walk than nearly all the floor it saw is floor it did not see: the
+            # offices inside the corridor's U, behind glass fronts stereo leaves open (280 m^2 were laid).
+            reach = np.quantile(camera_distance[grid.observed.ravel()], FLOOR_REACH_QUANTILE)
+            fillable &= camera_distance <= reach
         grid.keep |= fillable.reshape(shape)
         # Closing holes, not inventing surface: an added stretch must touch surface that was seen.
         labels, count = ndimage.label(grid.keep)

@@ -624,3 +624,34 @@ def test_the_floor_past_a_door_the_walk_went_through_is_the_walks():
     corridor = (b > 0.1) & (b < 1.9)
     assert grid.keep[corridor & (a > 0.2) & (a < 4.8)].mean() > 0.95
     assert grid.keep[corridor & (a > 5.2) & (a < 9.8)].mean() > 0.95  # past the door
+
+
+def test_floor_is_added_no_further_from_the_walk_than_the_floor_it_saw():
+    """The L corridor with its inner walls glass that stereo did not see: the mesh and the photos' depth
+    hold nothing between the corridor and the block of rooms inside the L, so no view says the block is
+    another room's. Its floor is further from every camera than the floor the photos saw, and stays
+    open (on the 3D Scanner App corridor 280 m^2 of offices had been floored); the floor under the
+    table, near the walk, still closes where no view saw through it."""
+    mesh, _, poses, table = _l_corridor()
+    glass = np.zeros(len(mesh.faces), bool)
+    centroids, areas, normals = face_geometry(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces, np.int64))
+    glass |= (np.abs(centroids[:, 1] - 2.0) < 1e-6) & (centroids[:, 0] < 4.0)  # inner y = 2
+    glass |= (np.abs(centroids[:, 0] - 4.0) < 1e-6) & (centroids[:, 1] > 2.0)  # inner x = 4
+    see_through = Mesh(mesh.vertices, mesh.faces[~glass])
+    K = np.array([[60.0, 0, 48], [0, 60.0, 36], [0, 0, 1]])
+    views = [PlainDepthView(render_depth(see_through.vertices, see_through.faces, K, pose, (96, 72)), K, pose)
+             for pose in poses]
+    floor = StructuralPlane(FLOOR, np.array([0.0, 0, 1]), 0.0, 20.0, np.array([[1.0, 0, 0], [0, 1.0, 0]]))
+    outer = [StructuralPlane(WALL, np.array(n, float), o, 10.0, np.array([np.cross(n, [0, 0, 1.0]), [0, 0, 1.0]]))
+             for n, o in (((0, 1, 0), 0.0), ((1, 0, 0), 0.0), ((-1, 0, 0), -6.0), ((0, -1, 0), -6.0))]
+    centroids, areas, normals = face_geometry(np.asarray(see_through.vertices, np.float64),
+                                              np.asarray(see_through.faces, np.int64))
+    grid = plane_grid(floor, [floor, *outer], centroids, areas, normals, floor.distance(centroids), 0.08, 0.04, views,
+                      fill=True)
+    a, b = np.meshgrid(grid.origin[0] + (np.arange(grid.keep.shape[0]) + 0.5) * grid.cell,
+                       grid.origin[1] + (np.arange(grid.keep.shape[1]) + 0.5) * grid.cell, indexing="ij")
+    block = (a < 3.9) & (b > 2.1)
+    assert block.sum() > 1000 and grid.added[block].mean() < 0.1
+    below_table = (a > table[0] + 0.05) & (a < table[1] - 0.05) & (b > table[2] + 0.05) & (b < table[3] - 0.05)
+    # (Some of it is seen through from the other leg now, past the missing glass and under the table top.)
+    assert grid.added[below_table].mean() > 0.8
