@@ -44,7 +44,8 @@ HISTOGRAM_BIN = 0.02  # m
 PEAK_WINDOW = 0.06  # m either side of a peak: the area that supports it
 MIN_PLANE_AREA = 0.3  # m^2 of surface a structural plane needs
 MIN_WALL_HEIGHT = 1.2  # m: a wall's surface spans at least this height (a counter's or a shelf's front does not)
-BACK_SIDE_SHARE = 0.5  # of a candidate wall's area whose nearest camera stands behind it: no wall of this room
+BACK_SIDE_SHARE = 0.5  # of a candidate wall's area whose nearest camera stands behind it: it faces them
+OPENING_CLEARANCE = 0.3  # m from a wall's own surface to where the walk crossed its plane: through a door
 BEHIND_MARGIN = 0.2  # m behind a candidate wall before surface counts as "behind" it
 # Surface behind a wall across its span, as a share of the wall's own area: a cabinet front has more
 # wall behind it than its own area; a wall has at most what its windows and doors show of outside.
@@ -422,12 +423,43 @@ def _seen_from_its_back(points: np.ndarray, areas: np.ndarray, cameras: np.ndarr
                         offset: float) -> bool:
     """Whether most of a candidate wall's surface (`points` (N, 3) with `areas` (N,), up-aligned frame) has
     its nearest camera (of `cameras` (C, 3), horizontally) behind the wall (direction . x < offset): the
-    photos that saw it best stood on its back side, so it is no wall of the room they stood in. On the 3D
-    Scanner App corridor the glass office fronts of the first leg, seen through from the walk, gave a
-    3.5 m^2 "wall" facing into the offices whose back cut the whole leg's floor from the floor plane."""
+    photos that saw it best stood on its back side. It is then the wall of the room they stood in, seen
+    through (glass, whose stereo surface may face either way), and is taken facing them. On the 3D
+    Scanner App corridor the glass office fronts of the first leg gave a 3.5 m^2 "wall" facing into the
+    offices whose back cut the whole leg's floor from the floor plane (78 % of its area had its nearest
+    camera behind it; 0 % for every other wall)."""
     _, nearest = cKDTree(cameras[:, :2]).query(points[:, :2])
     behind = cameras[nearest] @ direction < offset
     return bool(areas[behind].sum() > BACK_SIDE_SHARE * areas.sum())
+
+
+def _walked_through_an_opening(wall_uz: np.ndarray, cameras: np.ndarray, direction: np.ndarray, offset: float,
+                               u_axis: np.ndarray) -> bool:
+    """Whether the walk (`cameras` (C, 3) in capture order) crosses the plane direction . x = offset
+    between two consecutive cameras where none of the wall's own surface (`wall_uz` (N, 2): along
+    `u_axis`, height) lies within OPENING_CLEARANCE of the crossing: through a door in it. A glass front
+    the walk went along is crossed at most where its line meets the walk's corner, by its own surface; a
+    door frame across a corridor, where the walker passed through it."""
+    side = cameras @ direction - offset
+    front = side >= 0  # a camera on the plane counts as in front: the step off it crosses
+    crossing = np.flatnonzero(front[:-1] != front[1:])
+    if len(crossing) == 0 or len(wall_uz) == 0:
+        return False
+    t = side[crossing] / (side[crossing] - side[crossing + 1])
+    points = cameras[crossing] + t[:, None] * (cameras[crossing + 1] - cameras[crossing])
+    clearance, _ = cKDTree(wall_uz).query(np.stack([points @ u_axis, points[:, 2]], axis=1))
+    return bool(np.any(clearance > OPENING_CLEARANCE))
+
+
+def _wall(direction: np.ndarray, offset: float, area: float) -> StructuralPlane:
+    """A wall facing `direction` (3,) horizontal unit, at `offset`, with u horizontal and v = +Z."""
+    return StructuralPlane(WALL, direction.copy(), offset, area,
+                           np.stack([np.cross([0.0, 0.0, 1.0], direction), np.array([0.0, 0.0, 1.0])]))
+
+
+def _found_already(planes: list[StructuralPlane], direction: np.ndarray, offset: float) -> bool:
+    """Whether `planes` has a wall facing `direction` within two peak windows of `offset`."""
+    return any(p.kind == WALL and p.normal @ direction > 0.99 and abs(p.offset - offset) < 2 * PEAK_WINDOW for p in planes)
 
 
 def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centres: np.ndarray,
@@ -497,6 +529,7 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
     z_lo = next((p.offset for p in planes if p.kind == FLOOR), float(centroids[:, 2].min()) if len(centroids) else 0.0)
     z_hi = next((-p.offset for p in planes if p.kind == CEILING), float(centroids[:, 2].max()) if len(centroids) else 0.0)
     cos_tolerance = np.cos(np.radians(MANHATTAN_FACING_DEG if manhattan else HEADING_TOLERANCE_DEG))
+    seen_through = []  # walls seen from their back: (direction facing the cameras, offset, area)
     for direction in directions:
         facing = vertical & (normals @ direction > cos_tolerance)
         position = centroids[facing] @ direction
@@ -526,9 +559,12 @@ def find_structural_planes(vertices: np.ndarray, faces: np.ndarray, camera_centr
             if len(cameras) and np.median(cameras @ direction) < offset:
                 continue  # the cameras are behind it
             if len(cameras) and _seen_from_its_back(centroids[facing][near], areas[facing][near], cameras, direction, offset):
+                if not _walked_through_an_opening(np.stack([along, heights], axis=1), cameras, direction, offset, u_axis):
+                    seen_through.append((-direction, -offset, weight))
                 continue
-            if any(p.kind == WALL and p.normal @ direction > 0.99 and abs(p.offset - offset) < 2 * PEAK_WINDOW for p in planes):
-                continue  # the same wall again (its histogram has a broad top)
-            planes.append(StructuralPlane(WALL, direction.copy(), offset, weight,
-                                          np.stack([u_axis, np.array([0.0, 0.0, 1.0])])))
+            if not _found_already(planes, direction, offset):  # its histogram can have a broad top
+                planes.append(_wall(direction, offset, weight))
+    for direction, offset, weight in seen_through:
+        if not _found_already(planes, direction, offset):
+            planes.append(_wall(direction, offset, weight))
     return planes, {"heading_deg": round(float(np.degrees(heading)), 2), "manhattan": bool(manhattan)}

@@ -109,12 +109,12 @@ def test_a_table_over_a_floor_barely_seen_is_not_the_floor():
     assert abs(floor.offset) < 0.03
 
 
-def test_a_glass_front_seen_from_its_back_is_no_wall_of_the_leg_beside_it():
+def test_a_glass_front_seen_from_its_back_is_the_wall_of_the_leg_beside_it_facing_that_leg():
     """Two parallel 2 m corridors 3 m apart (photos along y = 1 and y = 6) with nothing between them but
     a framed glass front at y = 2.2 whose stereo surface faces the far corridor (its frames and
     transoms, as the 3D Scanner App corridor's office fronts came out): seen through its openings from
     the far leg, it passes as a wall facing +y, and its back would cut the near leg's floor. The
-    photos nearest it stood behind it, so it is none."""
+    photos nearest it stood behind it: it is the near leg's wall, seen through, and faces them."""
     from fixtures_box_room import merge, rectangle
 
     Z = 2.5
@@ -133,3 +133,27 @@ def test_a_glass_front_seen_from_its_back_is_no_wall_of_the_leg_beside_it():
     walls = [(tuple(np.round(p.normal, 3)), round(p.offset, 2)) for p in planes if p.kind == WALL]
     assert ((0.0, 1.0, 0.0), 0.0) in walls and ((0.0, -1.0, 0.0), -7.0) in walls  # both outer walls
     assert not any(normal[1] > 0.99 and abs(offset - 2.2) < 0.1 for normal, offset in walls), walls
+    assert any(normal[1] < -0.99 and abs(offset + 2.2) < 0.1 for normal, offset in walls), walls
+
+
+def test_a_walk_through_a_door_frame_crosses_it_at_an_opening_one_along_a_glass_front_does_not():
+    """The door frame across a corridor (jambs to y = 0.5 and from 1.5, a lintel above 2.1 m, on x = 5):
+    the walk down the corridor's middle crosses its plane 0.5 m from any of it. A glass front along the
+    walk (y = 2, x 0..6, framed to its end) is crossed only at the corner, where the walk turns round its
+    end: within its own surface's reach."""
+    from engine.finish.planes import _walked_through_an_opening
+
+    def grid(u0, u1, z0, z1, step=0.05):
+        u, z = np.meshgrid(np.arange(u0, u1 + 1e-9, step), np.arange(z0, z1 + 1e-9, step), indexing="ij")
+        return np.stack([u.ravel(), z.ravel()], axis=1)
+
+    # The frame faces +x: u = z x (+x) = +y.
+    frame = np.concatenate([grid(0.0, 0.5, 0.0, 2.5), grid(1.5, 2.0, 0.0, 2.5), grid(0.5, 1.5, 2.1, 2.5)])
+    walk = np.array([(x, 1.0, 1.5) for x in np.arange(0.5, 10.0, 0.5)])
+    assert _walked_through_an_opening(frame, walk, np.array([1.0, 0, 0]), 5.0, np.array([0, 1.0, 0]))
+
+    # The glass front faces -y (into the offices beyond y = 2): u = z x (-y) = +x. The walk goes along
+    # y = 1 to x = 6.2, then turns into a leg beyond the front's end (y from 2 to 5).
+    glass = grid(0.0, 6.0, 0.0, 2.5)
+    walk = np.array([(x, 1.0, 1.5) for x in np.arange(0.5, 6.3, 0.5)] + [(6.2, y, 1.5) for y in np.arange(1.5, 5.0, 0.5)])
+    assert not _walked_through_an_opening(glass, walk, np.array([0, -1.0, 0]), -2.0, np.array([1.0, 0, 0]))
