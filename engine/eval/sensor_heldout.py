@@ -205,10 +205,11 @@ def photos_alone(capture: Capture) -> Capture:
 
 
 def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, keep_poses: bool = False,
-                     progress=None, photos_only: bool = False, truth: Optional[LidarSurface] = None) -> dict:
+                     progress=None, photos_only: bool = False) -> dict:
     """Reconstruct `kept` as `engine reconstruct` does (pose check, refinement when off) with `settings`,
-    and compare the mesh with each held-out frame's LiDAR, and with their surface (`truth`, built from
-    `held` when not given). `photos_only`: from `photos_alone(kept)`."""
+    and compare the mesh with each held-out frame's LiDAR, and with their surface (fused once the
+    reconstruction is done, so its grid never adds to its peak memory). `photos_only`: from
+    `photos_alone(kept)`."""
     started = time.perf_counter()
     prepared = prepare_capture(photos_alone(kept) if photos_only else kept, sfm=SFM_IF_UNPOSED, check_poses=True,
                                refine_when_off=not keep_poses, progress=progress)
@@ -249,7 +250,7 @@ def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, 
     # The surface is the phone's; the mesh goes back there (identity for a metric capture).
     in_phone_world = mesh if similarity is None else Mesh(
         similarity.inverse().apply_points(mesh.vertices).astype(mesh.vertices.dtype), mesh.faces)
-    surface = surface_scores(in_phone_world, truth if truth is not None else held_out_surface(held))
+    surface = surface_scores(in_phone_world, held_out_surface(held))
     return {"sensor_depth": settings.sensor_depth and not photos_only, "photos_only": photos_only,
             "poses_found": poses_found, "settings": settings.to_dict(), "keep_poses": keep_poses,
             "poses_refined": prepared.refinement is not None, "frames_in": len(kept.frames), "held_out": len(rows),
@@ -336,14 +337,12 @@ def run(args: argparse.Namespace) -> int:
     progress = TqdmProgress(disable=args.quiet)
     try:
         settings = settings_from_quality_arguments(args)
-        # Each variant fuses the truth after its reconstruction (6 s on the corridor), so its 0.5 GB grid
-        # never adds to a reconstruction's peak memory.
         results = [evaluate_variant(kept, held, replace(settings, sensor_depth=v), args.keep_poses, progress,
                                     args.photos_only)
                    for v in variants]
     finally:
         progress.close()
-    truth = held_out_surface(held)
+    truth = held_out_surface(held)  # fused again (6 s on the corridor) rather than held through a reconstruction
     box = surface_scores(room_box_from_tsdf(truth.volume), truth)
     print(format_rows(results, box))
     if args.json:
