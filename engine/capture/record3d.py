@@ -22,7 +22,7 @@ differences the author states:
   [0, 0, 0, 1, 0, 0, 0]), so the world's axes are the first frame's camera axes and its "up" is only
   as level as the phone was then. When the first pose is that zero pose, the world is levelled here:
   turned about a horizontal axis so that up is +Z, up from the photos' vertical lines
-  (`engine.poses.vertical_lines`) or, when they show too few, the cameras' mean up (people hold the
+  (`vertical_lines.py`) or, when they show too few, the cameras' mean up (people hold the
   phone upright, but often tilted down), with a note saying which and by how much;
 - front-camera (TrueDepth) recordings have no tracking: every pose is the zero pose. They are refused
   with what to do instead.
@@ -45,7 +45,7 @@ import numpy as np
 from ..errors import CaptureError, PoseError
 from ..geometry.cameras import mean_up_direction, rotation_taking
 from ..jobs import CancelToken, ProgressFn
-from ..poses.vertical_lines import up_from_vertical_lines
+from .vertical_lines import up_from_vertical_lines
 from .arkit import arkit_to_engine, finish_phone_capture, frames_of_photos
 from .checks import SkippedPhotos, inspect_images
 from .geometry import PoseRepairs, pinhole

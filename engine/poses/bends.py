@@ -30,7 +30,7 @@ import numpy as np
 
 from ..capture.model import Frame
 from ..geometry.cameras import mean_up_direction
-from .vertical_lines import MIN_PHOTOS, evenly_spaced, photo_segments, photo_up, up_from_segments
+from ..capture.vertical_lines import MIN_PHOTOS, evenly_spaced, photo_segments, photo_up, up_from_segments
 
 BEND_TILT_DEG = 3.0
 BEND_MIN_PHOTOS = 3

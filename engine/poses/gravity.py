@@ -3,8 +3,8 @@
 SfM returns a world with an arbitrary orientation, origin and scale. VoRTX expects metres with
 gravity along -Z, so we
 1. rotate the world so that up becomes +Z: up from the photos' vertical lines
-   (`vertical_lines.py`) when enough are seen, else the mean of the cameras' up vectors (OpenCV
-   camera up is -y, i.e. -R[:, 1] in the world), which leans however the phone was held;
+   (`engine/capture/vertical_lines.py`) when enough are seen, else the mean of the cameras' up
+   vectors (OpenCV camera up is -y, i.e. -R[:, 1] in the world), which leans however the phone was held;
 2. find the floor as a plane in the sparse points below the cameras (RANSAC along gravity,
    `floor.py`); when the plane is well supported its normal refines gravity if the lines gave
    none, and is checked against the lines' up if they did (a disagreement is a warning). The median camera
@@ -40,7 +40,7 @@ from ..geometry.cameras import mean_up_direction, rotation_taking  # noqa: F401 
 from .align import Similarity
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .floor import GRAVITY_MIN_INLIERS, MIN_FLOOR_POINTS, FloorPlane, find_floor_plane
-from .vertical_lines import up_from_vertical_lines
+from ..capture.vertical_lines import up_from_vertical_lines
 
 # Vertical lines measure up to a tenth of a degree (0.06-0.08 deg on the corridor's ARKit poses and the
 # demo room's true ones); a well-supported floor plane more than this far from them is reported.

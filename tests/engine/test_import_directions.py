@@ -16,6 +16,11 @@ functions, under TYPE_CHECKING), so a lazy import cannot hide a cycle.
   walking loop both need is data/path_loop.py.
 - The network's input/output dataclasses (model/outputs.py, StereoEvidence among them) sit below the
   stereo-evidence features (model/stereo_evidence.py).
+- Reading a capture (engine/capture) sits below everything built on captures (poses, reconstruction,
+  finishing, ...): it imports only engine/geometry, engine/errors and engine/jobs, and engine/geometry
+  only engine/errors. What a loader and the pose estimation both need lives in engine/capture (the
+  Record3D loader levels its world by the photos' vertical lines, capture/vertical_lines.py, which
+  the SfM alignment in poses/gravity.py uses too).
 """
 
 from __future__ import annotations
@@ -84,3 +89,28 @@ def test_texture_never_imports_recon():
     # The texture command is above both; what it shares with `engine reconstruct` sits below both.
     assert {"engine.recon.settings", "engine.texture.vr"} <= imported_modules("engine.texture_command")
     assert "engine.sidecar" in imported_modules("engine.recon.cli") & imported_modules("engine.texture_command")
+
+
+# The floors below everything built on captures, and what each may import besides its own modules.
+BELOW = {
+    "engine.capture": {"engine.geometry", "engine.errors", "engine.jobs"},
+    "engine.geometry": {"engine.errors"},
+}
+
+
+@pytest.mark.parametrize("package", sorted(BELOW))
+def test_capture_and_geometry_never_import_up_a_floor(package):
+    modules = _in(package)
+    assert len(modules) > 3
+    allowed = BELOW[package]
+    offending = {m: sorted(i for i in imported_modules(m)
+                           if not any(i == p or i.startswith(p + ".") for p in allowed | {package}))
+                 for m in modules}
+    offending = {m: i for m, i in offending.items() if i}
+    assert not offending, \
+        f"{package} may import only {sorted(allowed)}, but {offending}: move what it needs down to it"
+
+
+def test_the_loader_and_the_pose_alignment_level_by_one_vertical_line_search():
+    assert "engine.capture.vertical_lines" in imported_modules("engine.capture.record3d")
+    assert "engine.capture.vertical_lines" in imported_modules("engine.poses.gravity")

@@ -12,7 +12,7 @@ from engine.capture.model import Capture, Frame
 from engine.geometry.cameras import mean_up_direction
 from engine.poses.align import Similarity
 from engine.poses.gravity import align_gravity_and_scale
-from engine.poses.vertical_lines import up_from_vertical_lines
+from engine.capture.vertical_lines import up_from_vertical_lines
 
 K = np.array([[500.0, 0, 320], [0, 500, 240], [0, 0, 1]])
 SIZE = (640, 480)

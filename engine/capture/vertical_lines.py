@@ -20,6 +20,10 @@ that are vertical:
 Accepted only with `MIN_LINES` inlier segments in `MIN_PHOTOS` photos; otherwise None and the caller
 keeps its prior. Horizontal lines whose plane happens to contain the vertical (a floor seam running
 straight away below the camera) satisfy the same equation, so they do not bias the answer.
+
+It lives in engine/capture, below engine/poses, because both levels use it: the Record3D loader
+levels its world with it as it reads the export (`record3d.py`), and the SfM alignment
+(`engine/poses/gravity.py`) and the bend search (`engine/poses/bends.py`) build on it.
 """
 
 from __future__ import annotations
@@ -29,8 +33,8 @@ from typing import Optional, Sequence
 
 import numpy as np
 
-from ..capture.images import load_image
-from ..capture.model import Frame
+from .images import load_image
+from .model import Frame
 from ..errors import CaptureError
 from ..geometry.cameras import scale_intrinsics
 
