@@ -25,9 +25,9 @@ from .settings import (ReconSettings, cli_flag, field_default, given_settings, m
 # (`python -m engine poses samples/demo_room/images`), then
 # `python -m engine reconstruct <posed> --quality NAME --out room.ply`: wall seconds on this project's
 # 2-core machine, idle, PatchMatch matching two references at once with one torch thread each. Measured
-# 2026-12-07 (session 37) with the window grid written contiguous: Preview 11 s (18 CPU s), Standard 63 s
-# (118 CPU s), High 92 s (173 CPU s); the code before took 10, 67 and 115 s the same hour (earlier that
-# day, on a machine 10-30 % slower: 13, 76 and 131 s). Before PatchMatch ran references in parallel,
+# with the window grid written contiguous: Preview 11 s (18 CPU s), Standard 63 s (118 CPU s), High 92 s
+# (173 CPU s); the code before took 10, 67 and 115 s the same hour (earlier, on a machine 10-30 %
+# slower: 13, 76 and 131 s). Before PatchMatch ran references in parallel,
 # Standard took 598 s beside other jobs: torch's own thread pool stalled whenever another process held a core.
 DEMO_MACHINE = "the demo room's 36 photos, 2 CPU cores"
 
