@@ -19,6 +19,7 @@ from typing import Callable
 
 from ..errors import CaptureError
 from .archive import ARCHIVE_SUFFIXES
+from .arkitscenes import is_arkitscenes_folder
 from .colmap import find_model_folders
 from .folder import photo_folder
 from .images import IMAGE_SUFFIXES
@@ -30,17 +31,20 @@ from .scanner_app import is_scanner_app_folder
 from .stray_scanner import is_stray_scanner_folder
 from .video import VIDEO_SUFFIXES, is_video_file
 
-# Phone scanning apps' exports (ARKit poses, often LiDAR depth): format name -> folder test.
+# Phone scanning apps' exports and ARKitScenes' raw iPad captures (ARKit poses, often LiDAR depth):
+# format name -> folder test.
 PHONE_EXPORTS: dict[str, Callable[[Path], bool]] = {
     "3dscannerapp": is_scanner_app_folder,
     "strayscanner": is_stray_scanner_folder,
     "record3d": is_record3d_folder,
     "polycam": is_polycam_folder,
+    "arkitscenes": is_arkitscenes_folder,
 }
 FORMATS = ("images", "colmap", "transforms", "scannet", "video", *PHONE_EXPORTS)
 _WHAT_IS_ACCEPTED = ("a folder of JPEG/PNG photos (or with an images/ sub-folder), a COLMAP project (sparse/ + "
                      "images/), a folder with transforms.json, a ScanNet export (color/ + pose/), a video file, or "
-                     "a phone app's export (3D Scanner App, Stray Scanner, Record3D, Polycam: the folder or its zip)")
+                     "a phone app's export (3D Scanner App, Stray Scanner, Record3D, Polycam: the folder or its zip) or an "
+                     "ARKitScenes video folder")
 
 
 def detect_format(path: Path) -> str:

@@ -8,6 +8,7 @@ from typing import Any, Callable, Optional
 from ..errors import CaptureError
 from ..jobs import CancelToken, ProgressFn
 from .archive import is_archive, unpacked_archive
+from .arkitscenes import load_arkitscenes
 from .colmap import load_colmap
 from .detect import FORMATS, detect_format
 from .folder import load_photo_folder
@@ -32,6 +33,7 @@ _LOADERS: dict[str, Callable[..., Capture]] = {
     "strayscanner": load_stray_scanner,
     "record3d": load_record3d,
     "polycam": load_polycam,
+    "arkitscenes": load_arkitscenes,
 }
 
 

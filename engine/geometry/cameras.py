@@ -199,3 +199,34 @@ def rotation_taking(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         return 2.0 * np.outer(axis, axis) - np.eye(3)
     vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
     return np.eye(3) + vx + vx @ vx / (1.0 + c)
+
+
+def turned_clockwise(K: np.ndarray, cam_to_world: np.ndarray, size: tuple[int, int],
+                     quarter_turns: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """The camera of an image (width, height) = `size` turned `quarter_turns` x 90 deg clockwise, as
+    `numpy.rot90(image, -quarter_turns)` turns it: (K (3, 3), camera-to-world (4, 4), new (width, height)).
+
+    One clockwise turn moves pixel (u, v) to (height - v, u), so the new camera's x axis is the old -y
+    and its y axis the old x: fx' = fy, cx' = height - cy, fy' = fx, cy' = cx. The world point seen at a
+    pixel is the same before and after, so depth maps turn with their photos and nothing else changes.
+    """
+    K, pose = np.asarray(K, np.float64).copy(), np.asarray(cam_to_world, np.float64).copy()
+    width, height = size
+    # new camera axes in old camera coordinates: x' = -y, y' = x, z' = z
+    one_turn = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    for _ in range(quarter_turns % 4):
+        K = np.array([[K[1, 1], 0.0, height - K[1, 2]], [0.0, K[0, 0], K[0, 2]], [0.0, 0.0, 1.0]])
+        pose[:3, :3] = pose[:3, :3] @ one_turn
+        width, height = height, width
+    return K, pose, (width, height)
+
+
+def upright_quarter_turns(cam_to_world: np.ndarray, up: Sequence[float] = (0.0, 0.0, 1.0)) -> int:
+    """How many clockwise quarter turns (0-3) make the images of cameras (N, 4, 4) upright: world `up`
+    pointing up the image (-y) on average. A handheld capture keeps one orientation throughout, so one
+    number serves every frame."""
+    up_in_camera = np.einsum("nji,j->ni", np.asarray(cam_to_world, np.float64)[:, :3, :3], np.asarray(up, np.float64))
+    x, y = up_in_camera[:, 0].mean(), up_in_camera[:, 1].mean()
+    # up after k clockwise turns, in the turned image: (x, y) -> (-y, x) per turn; upright when its y is least
+    ys = [y, x, -y, -x]
+    return int(np.argmin(ys))
