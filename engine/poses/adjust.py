@@ -20,7 +20,9 @@ against the remaining wrong matches. Levenberg-Marquardt with Marquardt's diagon
 Public API:
 - `Tracks`: observations (camera, point, uv) and the points' starting positions;
 - `AdjustOptions`, `adjust(K, groups, cam_from_world, tracks, options) -> Adjusted`;
-- `reprojection_errors(K, focal_scale, groups, cam_from_world, points, tracks) -> (O,) px`.
+- `reprojection_errors(K, focal_scale, groups, cam_from_world, points, tracks) -> (O,) px`;
+- `cam_from_world_of(c2w)`, `cam_to_world_of(cam_from_world)`: the engine's (4, 4) camera-to-world
+  poses to COLMAP's (3, 4) world-to-camera ones, which the adjustment and the worker speak, and back.
 """
 
 from __future__ import annotations
@@ -29,6 +31,8 @@ from dataclasses import dataclass
 from typing import Optional, Union
 
 import numpy as np
+
+from ..capture.geometry import camera_to_world_from_world_to_camera
 
 
 @dataclass
@@ -353,3 +357,14 @@ def adjust(K: np.ndarray, groups: np.ndarray, cam_from_world: np.ndarray, tracks
     constrained = np.bincount(tracks.point[inlier], minlength=len(tracks.points)) >= 2
     return Adjusted(problem.cam_from_world(), problem.focal_scale.copy(), problem.points.copy(), inlier,
                     error_given, error_adjusted, iterations, constrained)
+
+
+def cam_from_world_of(c2w: np.ndarray) -> np.ndarray:
+    """(4, 4) camera-to-world -> COLMAP's (3, 4) world-to-camera [R^T | -R^T t]."""
+    rotation = c2w[:3, :3].T
+    return np.hstack([rotation, (-rotation @ c2w[:3, 3])[:, None]])
+
+
+def cam_to_world_of(cam_from_world: np.ndarray) -> np.ndarray:
+    """COLMAP's (3, 4) world-to-camera [R | t] -> (4, 4) camera-to-world [R^T | -R^T t]."""
+    return camera_to_world_from_world_to_camera(cam_from_world[:, :3], cam_from_world[:, 3])

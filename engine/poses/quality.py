@@ -16,8 +16,9 @@ import numpy as np
 
 from ..capture.naming import name_list
 from ..errors import PoseError
+from .adjust import cam_from_world_of
 from .process import run_pose_job
-from .refine import FEATURE_MAX_SIDE, SharedFeatures, _cam_from_world, neighbour_pairs, photo_name
+from .refine import FEATURE_MAX_SIDE, SharedFeatures, neighbour_pairs, photo_name
 
 if TYPE_CHECKING:
     from ..capture.model import Capture
@@ -246,7 +247,7 @@ def check_given_poses(
         "max_num_features": 4096,
         "num_threads": -1,
         "K_per_image": [np.asarray(f.K, dtype=np.float64).tolist() for f in frames],
-        "cam_from_world": [_cam_from_world(p).tolist() for p in poses],
+        "cam_from_world": [cam_from_world_of(p).tolist() for p in poses],
         "pairs": [list(p) for p in neighbour_pairs(poses, 6, 2)],
         "rounds": 0,  # triangulate with the given poses only: no adjustment
         "loose_angle_deg": 3.0,

@@ -7,16 +7,17 @@ rescales weakly linked stretches of a trajectory (the SUN3D study room's first s
 So `refine_poses` takes the given poses as the gauge, as COLMAP's "known poses" recipe and OpenMVS do:
 1. only the frames reconstruction uses: the keyframes of a metric capture (`select_keyframes`, the
    reconstruction's own rule), each paired with its neighbours by pose and in capture order;
-2. in the COLMAP worker process (`sfm_worker.py`, kind "refine": a COLMAP abort must not take
+2. in the COLMAP worker process (`sfm_worker_refine.py`, kind "refine": a COLMAP abort must not take
    Blender down): SIFT features (at a lower contrast threshold on dim or plain photos), matches for
    those pairs, one triangulation with the given poses that keeps tracks as far off as the poses may
    be (`expected_error_deg`, COLMAP's own filter included), so tracks of three or more views survive
    for the adjustment to turn the cameras by (optionally a second triangulation with the turned ones);
 3. bundle adjustment here (`adjust.py`): rotations, one focal scale per intrinsics group and the
-   points, camera centres held at the given ones; then, as a second pass, the centres free within a
-   tight prior around the given ones, stretch by stretch: a stretch of the trajectory that it would
-   rescale by more than `max_stretch_scale_change` keeps the first pass's poses, the others take the
-   free centres when that lowers their reprojection error measurably;
+   points, camera centres held at the given ones; then, as a second pass (`stretches.py`), the centres
+   free within a tight prior around the given ones, stretch by stretch: a stretch of the trajectory
+   that it would rescale by more than `max_stretch_scale_change` keeps the first pass's poses, the
+   others take the free centres when that lowers their reprojection error measurably; keyframes the
+   triangulation left out are posed from the points their neighbours see (`resect.py`);
 4. judged before it is used: unless the refined poses explain the photos better than the given ones
    (mean reprojection error lower by `min_gain`), the given poses are kept and the result says so;
 5. frames between keyframes follow their neighbouring keyframes' corrections (interpolated in
@@ -28,7 +29,7 @@ So `refine_poses` takes the given poses as the gauge, as COLMAP's "known poses" 
 Public API (the CLI's `engine poses --refine`, `engine reconstruct`, Blender and the batch call this):
 - `refine_poses(capture, options=None, progress=None, cancel=None) -> RefineResult`;
 - `RefineOptions`, `RefineResult` (capture, changes per frame, stretch scales, errors before and
-  after, timings per stage, `report`), `FrameChange`, `StretchScale`.
+  after, timings per stage, `report`), `FrameChange`; `StretchScale` (`stretches.py`).
 """
 
 from __future__ import annotations
@@ -47,10 +48,11 @@ from ..capture.naming import name_list
 from ..errors import PoseError
 from ..geometry.view_selection import DEFAULT_KEYFRAME_ANGLE_DEG, DEFAULT_KEYFRAME_TRANSLATION_M, select_keyframes
 from ..jobs import CancelToken, ProgressCallback, check, report
-from .adjust import Adjusted, AdjustOptions, Tracks, adjust, log_rotations, reprojection_errors, rodrigues
-from .align import rotation_angle_deg, umeyama
+from .adjust import AdjustOptions, Tracks, adjust, cam_from_world_of, cam_to_world_of, log_rotations, rodrigues
+from .align import rotation_angle_deg
 from .process import run_pose_job
-from .resect import Resection, ResectOptions, point_correspondences, resect_rotation
+from .resect import Resection, resect_left_out
+from .stretches import StretchScale, free_centres, stretch_scales
 
 STATUS_REFINED = "refined"
 STATUS_REFUSED = "refused"
@@ -63,8 +65,6 @@ FEATURE_MAX_SIDE = 480
 
 PASS_HELD = "camera positions held"
 PASS_PRIORS = "camera positions within priors"
-# A stretch that keeps its given centres in the second pass: its prior's sigma times this (5 cm -> 0.01 mm).
-HELD_SIGMA_SHARE = 2e-4
 
 
 @dataclass
@@ -106,7 +106,7 @@ class RefineOptions:
     # the 200-frame render's rotation error against its truth 0.87 -> 0.66 deg median, centres 1.9 ->
     # 1.2 cm off, F 0.720 -> 0.772; SUN3D's second stretch's depth maps 0.75-0.80 -> 0.83-0.88 within 5 %
     # while its first, weakly linked stretch (rescaled 1.2 % when freed, its maps 0.39-0.53) keeps its
-    # poses. Freed everywhere (session 37) the first stretch's maps fell and SUN3D's F with them.
+    # poses. Freed everywhere, the first stretch's maps fell and SUN3D's F with them: hence by stretch.
     position_sigma_m: float = 0.05
     min_position_gain: float = 0.1  # a freed stretch is kept only when it lowers its cameras' error by this share
     max_stretch_scale_change: float = 0.005  # ... and the stretch's scale changes by no more than this
@@ -148,20 +148,6 @@ class FrameChange:
     translation: float  # distance between the given and the refined camera centre (RefineResult.units)
     status: str  # "refined" | "refused" | "not refined"
     reason: str = ""  # why it was refused or not refined
-
-
-@dataclass(frozen=True)
-class StretchScale:
-    """A part of the trajectory and the scale of its refined camera centres against the given ones."""
-
-    kind: str  # "stretch": frames between jumps in capture order; "group": frames linked by shared points
-    first: str  # name of its first frame
-    last: str  # name of its last frame
-    frames: int  # adjusted frames in it
-    scale: float  # similarity scale, refined -> given centres (1 = the given scale kept)
-
-    def describe(self) -> str:
-        return f"{self.kind} {self.first}..{self.last} ({self.frames} frames): scale {self.scale:.3f}"
 
 
 @dataclass
@@ -342,7 +328,7 @@ def refine_poses(
         "max_num_features": int(options.max_num_features),
         "num_threads": int(options.num_threads),
         "K_per_image": [np.asarray(frames[k].K, dtype=np.float64).tolist() for k in chosen],
-        "cam_from_world": [_cam_from_world(given[k]).tolist() for k in chosen],
+        "cam_from_world": [cam_from_world_of(given[k]).tolist() for k in chosen],
         "pairs": [list(p) for p in neighbour_pairs(given[chosen], options.neighbours, options.sequential_neighbours)],
         "loose_angle_deg": float(options.expected_error_deg),
         "loose_filter": bool(options.loose_filter),
@@ -375,7 +361,7 @@ def _retriangulated(job: dict, work: Path, frames: list[Frame], given: np.ndarra
     sx, sy = result["scale"]
     Ks = np.stack([np.diag([sx, sy, 1.0]) @ np.asarray(frames[k].K, dtype=np.float64) for k in chosen])
     found = result["tracks"]
-    first = adjust(Ks, _intrinsic_groups(Ks), np.stack([_cam_from_world(given[k]) for k in chosen]),
+    first = adjust(Ks, _intrinsic_groups(Ks), np.stack([cam_from_world_of(given[k]) for k in chosen]),
                    Tracks(found["obs_image"], found["obs_point"], found["obs_uv"], xyz),
                    AdjustOptions(position_sigma=None, refine_focal=options.refine_focal))
     first_time = time.perf_counter() - start
@@ -404,19 +390,6 @@ def photo_name(posed_index: int) -> str:
     """The worker's name for the capture's posed frame `posed_index` (the pose check names them alike,
     so a refinement can reuse the check's features)."""
     return f"{posed_index:06d}.jpg"
-
-
-def _cam_from_world(c2w: np.ndarray) -> np.ndarray:
-    """(4, 4) camera-to-world -> COLMAP's (3, 4) world-to-camera [R^T | -R^T t]."""
-    rotation = c2w[:3, :3].T
-    return np.hstack([rotation, (-rotation @ c2w[:3, 3])[:, None]])
-
-
-def _cam_to_world(cam_from_world: np.ndarray) -> np.ndarray:
-    pose = np.eye(4)
-    pose[:3, :3] = cam_from_world[:, :3].T
-    pose[:3, 3] = -cam_from_world[:, :3].T @ cam_from_world[:, 3]
-    return pose
 
 
 def _intrinsic_groups(Ks: np.ndarray) -> np.ndarray:
@@ -459,7 +432,7 @@ def _adjusted(
     sx, sy = result["scale"]
     Ks = np.stack([np.diag([sx, sy, 1.0]) @ np.asarray(frames[k].K, dtype=np.float64) for k in chosen])
     groups = _intrinsic_groups(Ks)
-    cam_from_world = np.stack([_cam_from_world(given[k]) for k in chosen])
+    cam_from_world = np.stack([cam_from_world_of(given[k]) for k in chosen])
     tracks = Tracks(tracks_found["obs_image"], tracks_found["obs_point"], tracks_found["obs_uv"], xyz)
     keypoint_of = np.asarray(tracks_found.get("obs_keypoint", np.full(len(tracks.camera), -1)), dtype=np.int64)
     start_tracks = tracks
@@ -473,7 +446,7 @@ def _adjusted(
         raise PoseError(_unconstrained_message(capture, int(constrained.sum()), len(chosen), result))
     extent = float(np.max(np.linalg.norm(given[:, None, :3, 3] - given[None, :, :3, 3], axis=-1)))
     chosen_given = given[chosen]
-    best, adjustment, stretches = held, PASS_HELD, _stretch_scales(frames, chosen, chosen_given, held, tracks, constrained)
+    best, adjustment, stretches = held, PASS_HELD, stretch_scales(frames, chosen, chosen_given, held, tracks, constrained)
     notes: list[str] = []
     if options.position_sigma_m > 0 and len(chosen) > options.max_free_frames:
         notes.append(f"camera positions kept as given: {len(chosen)} adjusted frames are more than the "
@@ -481,43 +454,30 @@ def _adjusted(
     elif options.position_sigma_m > 0:
         report(progress, "poses: bundle adjustment", 1, 2)
         sigma = options.position_sigma_m if capture.metric else options.position_sigma_m * extent / 100.0
-        start_tracks = Tracks(tracks.camera[held.inlier], tracks.point[held.inlier], tracks.uv[held.inlier], held.points)
-        free = adjust(Ks, groups, held.cam_from_world, start_tracks,
-                      AdjustOptions(position_sigma=sigma, refine_focal=options.refine_focal))
-        freed = _stretches_in_scale(chosen_given, free, constrained, options.max_stretch_scale_change)
-        if 0 < freed.sum() < len(freed):
-            # The stretches the free centres rescale keep the first pass's poses: adjusted again with those
-            # held (priors a 5,000th of the free ones) and the others free as before. Held centres alone
-            # are not enough: the held stretch then turns about its line of centres (SUN3D: 2.5 deg,
-            # every depth 2-3 % deeper).
-            held_share = np.where(freed, 1.0, HELD_SIGMA_SHARE)
-            free = adjust(Ks, groups, held.cam_from_world, start_tracks,
-                          AdjustOptions(position_sigma=sigma * held_share,
-                                        rotation_sigma_deg=AdjustOptions.rotation_sigma_deg * held_share,
-                                        refine_focal=options.refine_focal))
-        free_stretches = _stretch_scales(frames, chosen, chosen_given, free, start_tracks, constrained)
-        before_px, after_px = _freed_errors(Ks, groups, held, free, start_tracks, freed)
-        gain = 1.0 - after_px / before_px if before_px > 0 else 0.0
-        if not freed.any():
+        second = free_centres(Ks, groups, held, tracks, frames, chosen, chosen_given, constrained, sigma,
+                              options.max_stretch_scale_change, options.refine_focal)
+        start_tracks = second.tracks
+        if not second.freed.any():
             notes.append(f"camera positions kept as given: freeing them within {_length(sigma, units)} would rescale "
                          f"every stretch by more than {100 * options.max_stretch_scale_change:g} %")
-        elif gain < options.min_position_gain:
+        elif second.gain < options.min_position_gain:
             notes.append(f"camera positions kept as given: freeing them within {_length(sigma, units)} lowered the "
-                         f"reprojection error only from {before_px:.2f} to {after_px:.2f} px")
+                         f"reprojection error only from {second.error_held_px:.2f} to {second.error_free_px:.2f} px")
         else:
+            free = second.adjusted
             free.error_given_px = held.error_given_px  # the given poses' error on the first pass's observations
-            best, adjustment, stretches = free, PASS_PRIORS, free_stretches
-            if not freed.all():
-                kept = [frames[int(c)].name for c in chosen[~freed]]
+            best, adjustment, stretches = free, PASS_PRIORS, second.stretches
+            if not second.freed.all():
+                kept = [frames[int(c)].name for c in chosen[~second.freed]]
                 notes.append(f"camera positions kept as given for {len(kept)} frame(s) ({kept[0]} .. {kept[-1]}): "
                              f"freeing them would rescale their stretch by more than "
                              f"{100 * options.max_stretch_scale_change:g} %")
     report(progress, "poses: bundle adjustment", 2, 2)
     timings["adjust"] = time.perf_counter() - start
     start = time.perf_counter()
-    resected = _resect_left_out(Ks, best, tracks if best is held else start_tracks,
-                                keypoint_of if best is held else keypoint_of[held.inlier],
-                                result.get("matches"), constrained, chosen_given, options)
+    resected = resect_left_out(Ks, best, tracks if best is held else start_tracks,
+                               keypoint_of if best is held else keypoint_of[held.inlier], result.get("matches"),
+                               constrained, chosen_given, options.min_points, options.max_rotation_deg)
     timings["resect"] = time.perf_counter() - start
     if resected:
         notes.append(f"{len(resected)} frame(s) that too few triangulated points constrain were posed from the points "
@@ -528,43 +488,9 @@ def _adjusted(
         kept_given = (f"the refined poses explain the photos no better: {best.error_adjusted_px:.2f} px mean reprojection "
                       f"error against {best.error_given_px:.2f} px with the given ones (a gain under "
                       f"{100 * options.min_gain:.0f} %)")
-    adjusted_c2w = np.stack([_cam_to_world(p) for p in best.cam_from_world])
+    adjusted_c2w = np.stack([cam_to_world_of(p) for p in best.cam_from_world])
     return _apply(capture, posed_index, given, chosen, adjusted_c2w, constrained, seen, resected, best, adjustment,
                   stretches, kept_given, notes, units, extent, Ks, groups, xyz, rgb, timings, result, options)
-
-
-def _resect_left_out(Ks: np.ndarray, best: Adjusted, tracks: Tracks, keypoint_of: np.ndarray, matches: Optional[dict],
-                     constrained: np.ndarray, chosen_given: np.ndarray, options: RefineOptions) -> dict[int, Resection]:
-    """{camera: Resection} for the unconstrained cameras (K,) that `resect.py` can pose from the points
-    their posed neighbours observe, within max_rotation_deg of the given rotation; in rounds, each
-    round's frames lending their agreeing observations to the next.
-
-    best: the adjustment of `tracks` (whose observations' keypoint indices are keypoint_of, -1 unknown);
-    chosen_given: (K, 4, 4) the given camera-to-world poses of the adjusted frames."""
-    if matches is None or constrained.all() or (keypoint_of < 0).any():
-        return {}
-    resect_options = ResectOptions(min_inliers=options.min_points)
-    posed = constrained.copy()
-    camera, point, uv, keypoint, inlier = tracks.camera, tracks.point, tracks.uv, keypoint_of, best.inlier
-    resected: dict[int, Resection] = {}
-    for _ in range(resect_options.rounds):
-        found = point_correspondences(Tracks(camera, point, uv, best.points), inlier, keypoint, matches, posed, ~posed)
-        added = 0
-        for k, (keypoints, positions, points) in sorted(found.items()):
-            given_rotation = chosen_given[k, :3, :3].T
-            solved = resect_rotation(Ks[k], chosen_given[k, :3, 3], given_rotation, positions, best.points[points],
-                                     resect_options, np.random.default_rng(k))
-            if solved is None or rotation_angle_deg(solved.rotation @ given_rotation.T) > options.max_rotation_deg:
-                continue
-            resected[k], posed[k] = solved, True
-            agree = solved.inlier
-            camera = np.r_[camera, np.full(int(agree.sum()), k)]
-            point, uv = np.r_[point, points[agree]], np.r_[uv, positions[agree]]
-            keypoint, inlier = np.r_[keypoint, keypoints[agree]], np.r_[inlier, np.ones(int(agree.sum()), bool)]
-            added += 1
-        if not added:
-            break
-    return resected
 
 
 def _points_seen_with_others(tracks: Tracks, inlier: np.ndarray, cameras: int) -> np.ndarray:
@@ -583,90 +509,6 @@ def _unconstrained_message(capture: Capture, constrained: int, total: int, resul
             f"{result['database']['verified_pairs']} matched photo pairs). The given poses may not belong to these "
             "photos (another axis convention?), or the photos overlap too little; reconstruct with the given poses, "
             "or estimate new ones with structure from motion (engine poses)")
-
-
-def _stretch_scales(frames: list[Frame], chosen: np.ndarray, given_c2w: np.ndarray, adjusted, tracks: Tracks,
-                    constrained: np.ndarray) -> list[StretchScale]:
-    """Scale of the adjusted camera centres against the given ones, per stretch (split where the capture
-    jumps: a step over 10x the median step) and per connected group (frames linked by 20 or more
-    shared inlier points), for parts of 3 or more constrained frames."""
-    refined_c2w = np.stack([_cam_to_world(p) for p in adjusted.cam_from_world])
-    parts = [("stretch", part) for part in _stretch_parts(given_c2w)]
-    parts += [("group", part) for part in _covisible_groups(tracks, adjusted.inlier, len(chosen))]
-    scales: list[StretchScale] = []
-    seen: set[tuple[int, ...]] = set()
-    for kind, part in parts:
-        part = part[constrained[part]]
-        key = tuple(part.tolist())
-        if len(part) < 3 or (kind == "group" and key in seen):
-            continue
-        seen.add(key)
-        # Umeyama on the centres alone: its scale is the ratio of the centres' spreads, what a stretch
-        # changing size would change (the orientation-based fit would mix the cameras' turns into it).
-        fit = umeyama(refined_c2w[part, :3, 3], given_c2w[part, :3, 3])
-        scales.append(StretchScale(kind, frames[int(chosen[part[0]])].name, frames[int(chosen[part[-1]])].name,
-                                   len(part), float(fit.scale)))
-    return scales
-
-
-def _freed_errors(Ks: np.ndarray, groups: np.ndarray, held: Adjusted, free: Adjusted, tracks: Tracks,
-                  freed: np.ndarray) -> tuple[float, float]:
-    """Mean reprojection error (px) of the freed cameras' observations with the held and with the free
-    centres, each pass with its own points (`tracks`: the first pass's inliers; those the free pass kept).
-    (0, 0) when no freed camera has one."""
-    mine = freed[tracks.camera] & free.inlier
-    if not mine.any():
-        return 0.0, 0.0
-    before = reprojection_errors(Ks, held.focal_scale, groups, held.cam_from_world, held.points, tracks)[mine]
-    after = reprojection_errors(Ks, free.focal_scale, groups, free.cam_from_world, free.points, tracks)[mine]
-    return float(np.mean(before)), float(np.mean(after))
-
-
-def _stretch_parts(given_c2w: np.ndarray) -> list[np.ndarray]:
-    """Indices of the stretches of a trajectory (C, 4, 4): split where it jumps, a step over 10x the median step."""
-    centres = given_c2w[:, :3, 3]
-    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
-    cut = np.flatnonzero(steps > 10.0 * max(float(np.median(steps)) if len(steps) else 0.0, 1e-9)) + 1
-    return np.split(np.arange(len(centres)), cut)
-
-
-def _stretches_in_scale(given_c2w: np.ndarray, adjusted, constrained: np.ndarray, max_change: float) -> np.ndarray:
-    """(C,) bool: cameras in a stretch (3 or more constrained frames) whose adjusted centres keep the given
-    scale within `max_change`; the others' stretches were rescaled (or are too short to tell)."""
-    refined = np.stack([_cam_to_world(p) for p in adjusted.cam_from_world])[:, :3, 3]
-    keep = np.zeros(len(given_c2w), dtype=bool)
-    for part in _stretch_parts(given_c2w):
-        measured = part[constrained[part]]
-        if len(measured) >= 3 and abs(umeyama(refined[measured], given_c2w[measured, :3, 3]).scale - 1.0) <= max_change:
-            keep[part] = True
-    return keep
-
-
-def _covisible_groups(tracks: Tracks, inlier: np.ndarray, cameras: int, min_shared: int = 20) -> list[np.ndarray]:
-    """Connected components (sorted camera indices) of the graph linking cameras that share >= min_shared points."""
-    camera, point = tracks.camera[inlier], tracks.point[inlier]
-    order = np.argsort(point, kind="stable")
-    camera, point = camera[order], point[order]
-    shared = np.zeros((cameras, cameras), dtype=np.int64)
-    starts = np.flatnonzero(np.r_[True, point[1:] != point[:-1]])
-    for a, b in zip(starts, np.r_[starts[1:], len(point)]):
-        members = np.unique(camera[a:b])
-        shared[np.ix_(members, members)] += 1
-    linked = shared >= min_shared
-    label = -np.ones(cameras, dtype=np.int64)
-    groups = []
-    for seed in range(cameras):
-        if label[seed] >= 0:
-            continue
-        stack, label[seed], members = [seed], len(groups), [seed]
-        while stack:
-            c = stack.pop()
-            for other in np.flatnonzero(linked[c] & (label < 0)):
-                label[other] = len(groups)
-                members.append(int(other))
-                stack.append(int(other))
-        groups.append(np.array(sorted(members), dtype=np.int64))
-    return groups
 
 
 def follow_keyframes(given_c2w: np.ndarray, chosen: np.ndarray, adjusted_c2w: np.ndarray) -> np.ndarray:

@@ -13,6 +13,8 @@ when the points cluster in one part of the photo.
 - `point_correspondences(tracks, inlier, obs_keypoint, matches, posed, wanted)
    -> {camera: (keypoint (M,), uv (M, 2), point (M,))}`
 - `resect_rotation(K, centre, start_rotation, uv, points, options, rng) -> Resection | None`
+- `resect_left_out(Ks, best, tracks, keypoint_of, matches, constrained, chosen_given, min_points,
+   max_rotation_deg) -> {camera: Resection}`: the refinement's left-out cameras, posed in rounds
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ from typing import Optional
 
 import numpy as np
 
-from .adjust import Tracks
+from .adjust import Adjusted, Tracks
+from .align import rotation_angle_deg
 
 
 @dataclass(frozen=True)
@@ -144,3 +147,38 @@ def _wahba(bearing: np.ndarray, direction: np.ndarray, weight: Optional[np.ndarr
     w = np.ones(len(bearing)) if weight is None else weight
     u, _, vt = np.linalg.svd((bearing * w[:, None]).T @ direction)
     return u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+
+
+def resect_left_out(Ks: np.ndarray, best: Adjusted, tracks: Tracks, keypoint_of: np.ndarray, matches: Optional[dict],
+                    constrained: np.ndarray, chosen_given: np.ndarray, min_points: int,
+                    max_rotation_deg: float) -> dict[int, Resection]:
+    """{camera: Resection} for the unconstrained cameras (K,) that `resect_rotation` can pose from the
+    points their posed neighbours observe (`min_points` inliers at least), within `max_rotation_deg` of
+    the given rotation; in rounds, each round's frames lending their agreeing observations to the next.
+
+    best: the adjustment of `tracks` (whose observations' keypoint indices are keypoint_of, -1 unknown);
+    chosen_given: (K, 4, 4) the given camera-to-world poses of the adjusted frames."""
+    if matches is None or constrained.all() or (keypoint_of < 0).any():
+        return {}
+    resect_options = ResectOptions(min_inliers=min_points)
+    posed = constrained.copy()
+    camera, point, uv, keypoint, inlier = tracks.camera, tracks.point, tracks.uv, keypoint_of, best.inlier
+    resected: dict[int, Resection] = {}
+    for _ in range(resect_options.rounds):
+        found = point_correspondences(Tracks(camera, point, uv, best.points), inlier, keypoint, matches, posed, ~posed)
+        added = 0
+        for k, (keypoints, positions, points) in sorted(found.items()):
+            given_rotation = chosen_given[k, :3, :3].T
+            solved = resect_rotation(Ks[k], chosen_given[k, :3, 3], given_rotation, positions, best.points[points],
+                                     resect_options, np.random.default_rng(k))
+            if solved is None or rotation_angle_deg(solved.rotation @ given_rotation.T) > max_rotation_deg:
+                continue
+            resected[k], posed[k] = solved, True
+            agree = solved.inlier
+            camera = np.r_[camera, np.full(int(agree.sum()), k)]
+            point, uv = np.r_[point, points[agree]], np.r_[uv, positions[agree]]
+            keypoint, inlier = np.r_[keypoint, keypoints[agree]], np.r_[inlier, np.ones(int(agree.sum()), bool)]
+            added += 1
+        if not added:
+            break
+    return resected

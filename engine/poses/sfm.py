@@ -41,6 +41,7 @@ from ..capture.naming import name_list
 from ..capture.undistort import undistort_images
 from ..errors import PoseError
 from ..jobs import CancelToken, ProgressCallback, check
+from .adjust import cam_to_world_of
 from .bends import Bend, find_bend
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .gravity import Alignment, KnownDistance, align_gravity_and_scale
@@ -256,7 +257,7 @@ def _walk_check(result: dict, work: Path, matcher: str, options: SfmOptions) -> 
     lone = lone_photos([i for i, _ in posed], options.sequential_overlap) if matcher == "sequential" else []
     walk = [(i, im) for i, im in posed if i not in lone]
     frames = [Frame(work / "images" / im["name"], camera["width"], camera["height"], K_scaled,
-                    _cam_to_world(np.asarray(im["cam_from_world"], dtype=np.float64))) for _, im in walk]
+                    cam_to_world_of(np.asarray(im["cam_from_world"], dtype=np.float64))) for _, im in walk]
     bend = find_bend(frames)
     return WalkCheck(lone, bend, [i for i, _ in walk], len(walk) if bend is None else len(bend.kept))
 
@@ -273,15 +274,6 @@ def _pinhole(model: str, params: list[float]) -> tuple[np.ndarray, list[float]]:
     else:
         raise PoseError(f"COLMAP returned an unsupported camera model {model}")
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), radial
-
-
-def _cam_to_world(cam_from_world: np.ndarray) -> np.ndarray:
-    """COLMAP's (3, 4) world-to-camera [R | t] -> (4, 4) camera-to-world [R^T | -R^T t]."""
-    rotation, translation = cam_from_world[:, :3], cam_from_world[:, 3]
-    pose = np.eye(4)
-    pose[:3, :3] = rotation.T
-    pose[:3, 3] = -rotation.T @ translation
-    return pose
 
 
 def _pose_result(
@@ -310,7 +302,7 @@ def _pose_result(
         K = np.diag([1.0 / sx, 1.0 / sy, 1.0]) @ K_scaled
 
     index_of = {name: i for i, name in enumerate(names)}
-    poses = {index_of[im["name"]]: _cam_to_world(np.asarray(im["cam_from_world"], dtype=np.float64))
+    poses = {index_of[im["name"]]: cam_to_world_of(np.asarray(im["cam_from_world"], dtype=np.float64))
              for im in result["images"]}
     frames: list[Frame] = [replace(f, pose=poses.get(i), K=K.copy()) for i, f in enumerate(capture.frames)]
     registered = [f.name for i, f in enumerate(capture.frames) if i in poses]

@@ -161,7 +161,8 @@ def test_reconstruct_refine_poses_uses_and_reports_the_refined_poses(perturbed_c
 def test_reconstruct_sidecar_records_the_refinement(tmp_path, monkeypatch):
     """The sidecar's "poses" entry: source, scale and the refinement's numbers and refused frames."""
     from engine.poses.prepare import PreparedCapture
-    from engine.poses.refine import FrameChange, RefineResult, StretchScale
+    from engine.poses.refine import FrameChange, RefineResult
+    from engine.poses.stretches import StretchScale
 
     changes = [FrameChange("a.jpg", 0.5, 0.01, "refined"), FrameChange("b.jpg", 1.5, 0.03, "refined"),
                FrameChange("c.jpg", 20.0, 2.0, "refused", "refinement moved it by 20.0 deg")]

@@ -15,9 +15,10 @@ import pytest
 from engine.capture.model import Capture, Frame
 from engine.errors import PoseError
 from engine.poses import RefineOptions, fit_pose_similarity, refine_poses, rotation_angle_deg
-from engine.poses.adjust import Tracks, rodrigues
+from engine.poses.adjust import Tracks, cam_from_world_of, rodrigues
 from engine.poses.align import Similarity
-from engine.poses.refine import _adjusted, _cam_from_world, _stretches_in_scale, follow_keyframes, frames_to_adjust, neighbour_pairs
+from engine.poses.refine import _adjusted, follow_keyframes, frames_to_adjust, neighbour_pairs
+from engine.poses.stretches import stretches_in_scale
 from fixtures_capture import perturbed_poses as perturbed, rotation_about
 from fixtures_tracks import K as TRACK_K, observe, ring_room
 
@@ -78,8 +79,8 @@ def test_refinement_brings_perturbed_poses_back_within_a_fifth_of_a_degree(demo_
 
 def test_refining_the_same_photos_and_poses_again_gives_the_same_poses(demo_refinement):
     # COLMAP's extraction threads number the photos in the order they finish, and its RANSACs draw at
-    # random: both are pinned (sfm_worker.number_unmatched_images_by_name, REFINE_RANDOM_SEED), so a
-    # capture gives the same refined poses, and so the same mesh, every time.
+    # random: both are pinned (sfm_worker_refine.number_unmatched_images_by_name, REFINE_RANDOM_SEED), so
+    # a capture gives the same refined poses, and so the same mesh, every time.
     _, given, first = demo_refinement
     frames = [Frame(f.image_path, f.width, f.height, f.K.copy(), g) for f, g in zip(first.capture.frames, given)]
     again = refine_poses(Capture(SAMPLE / "images", "scannet", frames, metric=True), RefineOptions())
@@ -164,13 +165,13 @@ def test_only_the_stretches_that_freed_centres_keep_in_scale_take_them():
     for part, scale in zip(stretches, (1.012, 1.001, 1.0)):
         centre = walk[part, :3, 3].mean(0)
         freed_walk[part, :3, 3] = centre + scale * (walk[part, :3, 3] - centre) + [0.0, 0.004, 0.0]
-    adjusted = SimpleNamespace(cam_from_world=np.stack([_cam_from_world(p) for p in freed_walk]))
+    adjusted = SimpleNamespace(cam_from_world=np.stack([cam_from_world_of(p) for p in freed_walk]))
     constrained = np.ones(26, dtype=bool)
-    freed = _stretches_in_scale(walk, adjusted, constrained, 0.005)
+    freed = stretches_in_scale(walk, adjusted, constrained, 0.005)
     assert freed.tolist() == [False] * 12 + [True] * 12 + [False] * 2
-    assert _stretches_in_scale(walk, adjusted, constrained, 0.02).tolist() == [True] * 24 + [False] * 2
+    assert stretches_in_scale(walk, adjusted, constrained, 0.02).tolist() == [True] * 24 + [False] * 2
     constrained[12:22] = False  # the second stretch's scale rests on two frames: not measured, not freed
-    assert not _stretches_in_scale(walk, adjusted, constrained, 0.02)[12:24].any()
+    assert not stretches_in_scale(walk, adjusted, constrained, 0.02)[12:24].any()
 
 
 # --- the rules around the adjustment, on synthetic tracks (no COLMAP) -------------------------------
