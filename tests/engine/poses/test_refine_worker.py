@@ -1,4 +1,4 @@
-"""The refine job's triangulation settings in the COLMAP worker (sfm_worker.py), without running COLMAP:
+"""The refine job's triangulation settings in the COLMAP worker (sfm_worker_refine.py), COLMAP not run:
 poses a tracker gives (1-2 deg off) reproject tracks of three or more views 5-10 px off at a 280 px
 focal, so the triangulation must tolerate that much, or the tracks that could correct the rotations are
 gone before our own adjustment sees them; COLMAP's fixed-pose adjustment filter only with `loose_filter`."""
@@ -13,7 +13,7 @@ import pytest
 
 pycolmap = pytest.importorskip("pycolmap")
 
-from engine.poses import sfm_worker  # noqa: E402
+from engine.poses import sfm_worker_refine  # noqa: E402
 
 
 def _options_of_triangulation(monkeypatch, tmp_path: Path, loose_angle_deg: float, focal: float, loose_filter: bool = False):
@@ -24,7 +24,7 @@ def _options_of_triangulation(monkeypatch, tmp_path: Path, loose_angle_deg: floa
         return reconstruction
 
     monkeypatch.setattr(pycolmap, "triangulate_points", fake)
-    sfm_worker._triangulate(pycolmap.Reconstruction(), tmp_path / "db", tmp_path, tmp_path / "out", loose_angle_deg, focal,
+    sfm_worker_refine._triangulate(pycolmap.Reconstruction(), tmp_path / "db", tmp_path, tmp_path / "out", loose_angle_deg, focal,
                             loose_filter)
     return seen["options"]
 
@@ -54,10 +54,10 @@ def test_a_tolerance_of_zero_is_colmaps_own(monkeypatch, tmp_path):
 
 def test_a_reused_database_says_how_its_features_were_extracted(tmp_path):
     database = tmp_path / "database.db"
-    assert sfm_worker._features_settings(database) == {}  # an older database without the side file: defaults
-    sfm_worker._features_path(database).write_text(json.dumps({"peak_threshold": sfm_worker.LOW_CONTRAST_PEAK_THRESHOLD}))
-    assert sfm_worker._features_settings(database)["peak_threshold"] == sfm_worker.LOW_CONTRAST_PEAK_THRESHOLD
-    assert sfm_worker._features_path(database).name == "database_features.json"
+    assert sfm_worker_refine._features_settings(database) == {}  # an older database without the side file: defaults
+    sfm_worker_refine._features_path(database).write_text(json.dumps({"peak_threshold": sfm_worker_refine.LOW_CONTRAST_PEAK_THRESHOLD}))
+    assert sfm_worker_refine._features_settings(database)["peak_threshold"] == sfm_worker_refine.LOW_CONTRAST_PEAK_THRESHOLD
+    assert sfm_worker_refine._features_path(database).name == "database_features.json"
 
 
 @pytest.mark.parametrize("camera_per_photo", [False, True], ids=["one camera", "a camera per photo"])
@@ -85,9 +85,9 @@ def test_unmatched_images_are_numbered_by_name_and_matched_ones_keep_their_ids(t
             con.execute("INSERT INTO descriptors VALUES (?, 0, ?, 128, ?)", (image_id, image_id, bytes(128 * image_id)))
             con.execute("INSERT INTO frames VALUES (?, ?)", (frame_of_image[image_id], rig_of_camera[camera]))
             con.execute("INSERT INTO frame_data VALUES (?, ?, ?, 0)", (frame_of_image[image_id], image_id, camera))
-        con.execute("INSERT INTO matches VALUES (?, 0, 2, NULL)", (1 * sfm_worker.COLMAP_MAX_IMAGES + 4,))
+        con.execute("INSERT INTO matches VALUES (?, 0, 2, NULL)", (1 * sfm_worker_refine.COLMAP_MAX_IMAGES + 4,))
 
-    sfm_worker.number_unmatched_images_by_name(database)
+    sfm_worker_refine.number_unmatched_images_by_name(database)
 
     with sqlite3.connect(database) as con:
         ids = dict(con.execute("SELECT name, image_id FROM images"))
