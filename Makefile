@@ -4,7 +4,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-$(shell cat requirements.txt constraints.txt | sha1sum | cut -c1-12)
 
-.PHONY: venv tools test demo extension bench devrooms clean
+.PHONY: venv tools test demo extension bench bench-real real-rooms devrooms clean
 
 venv: $(STAMP)
 
@@ -43,6 +43,16 @@ extension: venv
 
 bench: venv
 	$(PY) -m engine bench
+
+# The real-room suite (engine/eval/real_rooms.py): every real capture with truth under DATA, every
+# default, scored beside the committed docs/real_rooms.json; about 30 min on 2 cores. `make real-rooms`
+# fetches the captures first (research data under their own licences, kept outside the repository).
+DATA ?= $(abspath ../data)
+real-rooms: venv
+	$(PY) scripts/fetch_real_rooms.py $(DATA)
+
+bench-real: venv
+	$(PY) -m engine bench --real $(DATA) --out docs/real_rooms.json
 
 # The fixed held-out development rooms (MODEL.md "Development rooms"): seeds 5001-5004 clean and
 # real, outside the repository. Re-running resumes; about 1-2 min per Workbench room and 30 min per

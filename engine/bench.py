@@ -42,6 +42,7 @@ import numpy
 import torch
 
 from .capture import load_capture
+from .eval.real_rooms import DEFAULT_DATA, run_suite
 from .eval.stereo_depth import KEYS as DEPTH_KEYS, compare_depth, true_depth_at
 from .poses.prepare import SFM_NEVER, prepare_capture
 from .poses.refine import refine_poses
@@ -109,7 +110,14 @@ QUICK_TEXTURE_SIZES = (2048,)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--quick", action="store_true", help="one small run and a small sparse-conv check (about a minute)")
+    parser.add_argument("--quick", action="store_true", help="one small run and a small sparse-conv check (about a "
+                        "minute); with --real, the rooms marked quick, their default run only")
+    parser.add_argument("--real", type=Path, nargs="?", const=DEFAULT_DATA, default=None, metavar="DATA_DIR",
+                        help="the real-room suite instead (engine/eval/real_rooms.py): every real capture with truth "
+                             "under DATA_DIR (default %(const)s), every default, scored, beside docs/real_rooms.json")
+    parser.add_argument("--rooms", nargs="+", default=None, metavar="NAME", help="with --real: only these rooms")
+    parser.add_argument("--repeat", type=int, default=1,
+                        help="with --real: run each room this many times and record the spread between the runs")
     parser.add_argument("--out", type=Path, default=None, help="also write the results as JSON here")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default %(default)s)")
     parser.add_argument("--evidence-weights", type=Path, default=None,
@@ -508,6 +516,9 @@ def refine_markdown(profile: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.real is not None:
+        out = args.out if args.out is not None else Path("out") / "real_rooms.json"
+        return run_suite(args.real, args.quick, args.rooms, args.repeat, out, out.parent / "real_rooms_runs")
     if args.refine_profile is not None:
         profile = refine_profile(args.refine_profile)
         print(refine_markdown(profile))

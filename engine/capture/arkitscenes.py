@@ -28,7 +28,6 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
-import cv2
 import numpy as np
 
 from ..errors import CaptureError
@@ -67,6 +66,7 @@ def is_arkitscenes_folder(path: Path) -> bool:
 def read_trajectory(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """(times (N,) seconds, camera-to-world poses (N, 4, 4)) of a lowres_wide.traj, sorted by time;
     CaptureError naming the line when one is not seven numbers."""
+    import cv2  # defers cv2 (OpenCV) off the light paths
     times, poses = [], []
     for number, line in enumerate(path.read_text(encoding="utf-8", errors="replace").splitlines(), start=1):
         if not line.strip():
@@ -100,6 +100,7 @@ def read_pincam(path: Path) -> tuple[np.ndarray, tuple[int, int]]:
 
 
 def _turned_file(source: Path, target: Path, quarter_turns: int) -> None:
+    import cv2  # defers cv2 (OpenCV) off the light paths
     image = cv2.imread(str(source), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(f"cannot decode {source}")

@@ -67,7 +67,9 @@ from ..geometry.depth_render import render_depth
 from ..jobs import TqdmProgress
 from ..mesh_io import Mesh
 from ..poses.prepare import KEEP_POSES_HELP, SFM_IF_UNPOSED, prepare_capture
+from ..poses import Similarity
 from ..recon.driver import reconstruct
+from ..recon.output_frame import moved_mesh
 from ..recon.presets import add_quality_argument, settings_from_quality_arguments
 from ..recon.settings import ReconSettings, add_setting_arguments
 from ..tsdf.integration import fuse_ground_truth
@@ -220,7 +222,7 @@ def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, 
         # The mesh moves onto the phone's world; the held-out frames keep the phone's poses.
         comparison = compare_poses({f.image_path.stem: f.pose for f in prepared.capture.frames if f.pose is not None},
                                    {f.image_path.stem: f.pose for f in kept.frames if f.pose is not None})
-        mesh = Mesh(comparison.to_truth.apply_points(mesh.vertices).astype(mesh.vertices.dtype), mesh.faces)
+        mesh = moved(mesh, comparison.to_truth)
         poses_found = {"registered": len(comparison.stems), "photos": len(kept.frames),
                        "models": list(prepared.sfm.model_sizes) if prepared.sfm is not None else [],
                        "scale_source": prepared.scale_source, "description": prepared.description,
@@ -248,17 +250,26 @@ def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, 
         raise VortxError("no held-out frame has confident sensor depth to compare with")
     mean = mean_of_rows(rows)
     # The surface is the phone's; the mesh goes back there (identity for a metric capture).
-    in_phone_world = mesh if similarity is None else Mesh(
-        similarity.inverse().apply_points(mesh.vertices).astype(mesh.vertices.dtype), mesh.faces)
-    surface = surface_scores(in_phone_world, held_out_surface(held))
+    to_phone = comparison.to_truth if photos_only else similarity.inverse() if similarity is not None else None
+    truth = held_out_surface(held)
+    surface = surface_scores(mesh if photos_only else moved(mesh, to_phone), truth)
+    # Finish Off from the same run: marching cubes' mesh before the finishing
+    unfinished = (surface_scores(moved(result.unfinished_mesh, to_phone), truth)
+                  if result.unfinished_mesh is not None else None)
     return {"sensor_depth": settings.sensor_depth and not photos_only, "photos_only": photos_only,
             "poses_found": poses_found, "settings": settings.to_dict(), "keep_poses": keep_poses,
             "poses_refined": prepared.refinement is not None, "frames_in": len(kept.frames), "held_out": len(rows),
             "faces": int(len(mesh.faces)), "seconds": round(seconds, 1), "mean": mean, "surface": surface,
+            "surface_unfinished": unfinished,
             "frames": rows,
             "photo_depth_ratio": ratio,
             "stereo": result.stats.get("stereo", {}), "finish": result.stats.get("finish", {}),
             "warnings": list(result.warnings)}
+
+
+def moved(mesh: Mesh, similarity: Optional[Similarity]) -> Mesh:
+    """`mesh` moved by `similarity` (`output_frame.moved_mesh`); None leaves it as it is."""
+    return mesh if similarity is None else moved_mesh(mesh, similarity)
 
 
 def variant_name(result: dict) -> str:

@@ -192,6 +192,7 @@ def _run_planned(
                            f"the fine TSDF ({level_label(settings.voxel_size)}) never changes sign, so there is no "
                            "surface: the weights may be untrained/random, or the poses are not metric and gravity-aligned")
     check(cancel)
+    unfinished = mesh
     with timer.stage("finish"):
         mesh, finish_stats = finish_reconstruction(mesh, plan, settings, stereo_maps)
     if finish_stats is not None:  # the sidecar's "mesh" is the mesh written; marching cubes' count stays in "finish"
@@ -204,7 +205,7 @@ def _run_planned(
             # Judged in the band the classical surface it started from was fused with, as the stereo method does.
             stats["evidence"] = attach_evidence(mesh, stereo_maps, settings.voxel_size, network_completes=True,
                                                 truncation_voxels=CLASSICAL_TRUNCATION_VOXELS)
-    return ReconResult(mesh, plan.tiles, stats, None)
+    return ReconResult(mesh, plan.tiles, stats, None, unfinished_mesh=unfinished if finish_stats is not None else None)
 
 
 def classical_fine_fusion(

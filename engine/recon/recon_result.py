@@ -36,6 +36,9 @@ class ReconResult:
     stats: dict[str, Any] = field(default_factory=dict)
     message: Optional[str] = None
     warnings: list[str] = field(default_factory=list)
+    # Marching cubes' mesh before the finishing, when the finishing ran: what Finish Off gives from the
+    # same run, so evaluations score both without reconstructing twice (no colours).
+    unfinished_mesh: Optional[Mesh] = None
 
     @property
     def is_empty(self) -> bool:

@@ -179,6 +179,7 @@ def run_stereo_fusion(
             del blocks
         report(progress, "mesh", 1, 1)
         check(cancel)
+        unfinished = mesh
         with timer.stage("finish"):
             mesh, finish_stats = finish_reconstruction(mesh, plan, settings, maps)
         if finish_stats is not None:
@@ -204,4 +205,5 @@ def run_stereo_fusion(
     stats["warnings"] = list(plan.warnings)
     stats["message"] = message
     stats["tiles"]["states"] = {s.value: sum(t.state is s for t in plan.tiles) for s in TileState}
-    return ReconResult(mesh, plan.tiles, stats, message, warnings=list(plan.warnings))
+    return ReconResult(mesh, plan.tiles, stats, message, warnings=list(plan.warnings),
+                       unfinished_mesh=unfinished if finish_stats is not None else None)
