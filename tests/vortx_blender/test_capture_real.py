@@ -259,3 +259,22 @@ def test_the_real_corridor_export_imports_with_its_cameras_and_depth_points(blen
     camera_z = np.median([np.array(o.matrix_world)[2, 3] for o in _capture_cameras(bpy)])
     floor_z = np.percentile(points[:, 2], 5)
     assert 1.2 < camera_z - floor_z < 1.7
+
+
+def test_arkitscenes_video_folder_imports_upright_and_metric(blender, empty_scene, tmp_path: Path) -> None:
+    # An iPad's landscape photos of a portrait capture: the cameras come in upright, the photo portrait.
+    import bpy
+
+    from fixtures_arkitscenes import H, W, capture_poses, write_arkitscenes
+
+    poses = capture_poses()
+    folder = write_arkitscenes(tmp_path / "40777060", poses, [10.0, 10.1, 10.2, 10.3])
+    assert bpy.ops.vortx.import_capture(filepath=str(folder)) == {"FINISHED"}
+    settings = empty_scene.vortx
+    assert (settings.capture_format, settings.frame_count, settings.posed_frame_count) == ("arkitscenes", 4, 4)
+    assert (settings.resolution_x, settings.resolution_y) == (H, W)
+    cameras = _capture_cameras(bpy)
+    for obj, given in zip(cameras, poses):
+        matrix = np.array(obj.matrix_world)
+        assert matrix[2, 1] > 0.9, "a Blender camera's up (local +Y) points up the world"
+        np.testing.assert_allclose(matrix[:3, 3], given[:3, 3], atol=1e-5)  # metres, where the iPad was
