@@ -73,6 +73,9 @@ class Room:
     kind: str
     what: str
     quick: bool
+    # Photos alone from every n-th photo: a 10 Hz video's 660 frames are not what a user photographs,
+    # and SfM over all of them takes 20 minutes (the ARKitScenes kitchen); n photos a second are.
+    photos_alone_every: int = 1
 
 
 def manifest() -> list[dict[str, Any]]:
@@ -98,7 +101,8 @@ def find_rooms(data: Path, quick: bool = False, names: Optional[list[str]] = Non
         if names and entry["name"] not in names or quick and not entry["quick"]:
             continue
         if path.exists():
-            rooms.append(Room(entry["name"], path, entry["kind"], entry["what"], entry["quick"]))
+            rooms.append(Room(entry["name"], path, entry["kind"], entry["what"], entry["quick"],
+                              entry.get("photos_alone_every", 1)))
         else:
             missing.append(f"{entry['name']}: not at {path} (python scripts/fetch_real_rooms.py {data})")
     if data.is_dir() and not quick:
@@ -134,7 +138,8 @@ def run_phone(room: Room, photos_only: bool) -> list[dict[str, Any]]:
     held = [f for f in held if f.sensor_depth is not None and f.pose is not None]
     if not held:
         raise VortxError(f"{room.path}: no frame has both a pose and sensor depth to score against")
-    result = evaluate_variant(capture, held, replace(ReconSettings(), sensor_depth=False), photos_only=photos_only)
+    kept = capture.with_frames(capture.frames[::room.photos_alone_every]) if photos_only else capture
+    result = evaluate_variant(kept, held, replace(ReconSettings(), sensor_depth=False), photos_only=photos_only)
     name = "photos alone" if photos_only else "default"
     records = [{"variant": name, **figures(result["surface"]), "wall_s": result["seconds"],
                 "extra": {"faces": result["faces"], "poses_found": result["poses_found"],
@@ -232,7 +237,7 @@ def committed_records() -> list[dict[str, Any]]:
 def spawn(room: Room, run: str, out: Path, quiet: bool) -> list[dict[str, Any]]:
     """One run in a process of its own; its records, or one failed record saying why."""
     command = [sys.executable, "-m", "engine.eval.real_rooms", "--child", str(room.path), room.kind, room.name, run,
-               str(out)]
+               str(out), str(room.photos_alone_every)]
     started = time.perf_counter()
     done = subprocess.run(command, cwd=REPO, stdout=subprocess.DEVNULL if quiet else None,
                           stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
@@ -319,8 +324,8 @@ def write_records(records: list[dict[str, Any]], out: Path) -> None:
 
 
 def child_main(argv: list[str]) -> int:
-    path, kind, name, run, out = argv
-    room = Room(name, Path(path), kind, "", False)
+    path, kind, name, run, out, every = argv
+    room = Room(name, Path(path), kind, "", False, int(every))
     try:
         records = run_child(room, run)
     except VortxError as error:
