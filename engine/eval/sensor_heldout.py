@@ -59,7 +59,7 @@ import numpy as np
 
 from ..capture import load_capture
 from ..capture.model import Capture, Frame
-from ..capture.sensor_depth import HIGH_CONFIDENCE, read_sensor_depth, sensor_measured
+from ..capture.sensor_depth import HIGH_CONFIDENCE, read_sensor_depth, sensor_measured, sensor_points
 from ..errors import VortxError
 from ..geometry.cameras import project_points, scale_intrinsics
 from ..geometry.depth_normals import depth_normals
@@ -206,12 +206,23 @@ def photos_alone(capture: Capture) -> Capture:
                    pose_origin="", warnings=[], notes=[])
 
 
+def without_held_out_points(kept: Capture, held: list[Frame]) -> Capture:
+    """`kept` whose point cloud, a phone capture's LiDAR (`load_capture`), leaves the `held` frames' out:
+    the points bound and seed stereo, so the truth's own depth would otherwise be an input."""
+    if kept.points is None or not kept.frames_with_sensor_depth:
+        return kept
+    held_photos = {f.image_path for f in held}
+    return kept.with_points(*sensor_points([f for f in kept.frames if f.image_path not in held_photos]))
+
+
 def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, keep_poses: bool = False,
                      progress=None, photos_only: bool = False) -> dict:
     """Reconstruct `kept` as `engine reconstruct` does (pose check, refinement when off) with `settings`,
     and compare the mesh with each held-out frame's LiDAR, and with their surface (fused once the
     reconstruction is done, so its grid never adds to its peak memory). `photos_only`: from
     `photos_alone(kept)`."""
+    if not photos_only:
+        kept = without_held_out_points(kept, held)
     started = time.perf_counter()
     prepared = prepare_capture(photos_alone(kept) if photos_only else kept, sfm=SFM_IF_UNPOSED, check_poses=True,
                                refine_when_off=not keep_poses, progress=progress)

@@ -177,3 +177,26 @@ def test_against_the_lidar_surface_a_room_3_cm_off_is_whole_and_10_cm_off_loses_
     assert far["recall"] == pytest.approx(1 - end_walls, abs=0.05)
     assert far["prec"] < 1 - 0.5 * end_walls
     assert far["normal_agreement"] > 0.93  # what is near the truth still faces as it does
+
+
+def test_the_held_out_frames_lidar_is_no_input_of_the_reconstruction(export):
+    # The capture's point cloud is its LiDAR (it bounds and seeds stereo): a frame's depth is a plane at
+    # 1 + 0.1 i m before it, so each point's depth along its frame's axis says which frame gave it.
+    from engine.eval.sensor_heldout import without_held_out_points
+
+    assert export.points is not None
+    kept, held = split_capture(export, 2)
+    scored = without_held_out_points(export, held)  # --all-photos: every photo in, every second one the truth
+
+    def frames_of(points: np.ndarray) -> set[int]:
+        found = set()
+        for i, frame in enumerate(export.frames):
+            depth = (points - frame.pose[:3, 3]) @ frame.pose[:3, 2]
+            if np.isclose(depth, 1.0 + 0.1 * i, atol=1e-3).any():
+                found.add(i)
+        return found
+
+    held_positions = {export.frames.index(f) for f in held}
+    assert held_positions <= frames_of(export.points), "the fixture's cloud holds every frame's depth"
+    assert not frames_of(scored.points) & held_positions
+    assert frames_of(scored.points) == set(range(len(export.frames))) - held_positions
