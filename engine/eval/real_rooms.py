@@ -144,8 +144,9 @@ def run_phone(room: Room, photos_only: bool) -> list[dict[str, Any]]:
     records = [{"variant": name, **figures(result["surface"]), "wall_s": result["seconds"],
                 "extra": {"faces": result["faces"], "poses_found": result["poses_found"],
                           "within_5cm_per_pixel": result["mean"]["within_5cm"]}}]
+    records.append({"variant": "finish off" if not photos_only else f"{name}, finish off",
+                    **figures(result["surface_unfinished"]), "wall_s": result["seconds"]})
     if not photos_only:
-        records.append({"variant": "finish off", **figures(result["surface_unfinished"]), "wall_s": result["seconds"]})
         truth = held_out_surface(held)
         records.append({"variant": "room box", **figures(surface_scores(room_box_from_tsdf(truth.volume), truth)),
                         "wall_s": 0.0})
@@ -185,10 +186,11 @@ def run_with_truth(room: Room, photos_only: bool) -> list[dict[str, Any]]:
         scores = score_mesh("", moved(mesh, to_truth), truth, volume)
         return figures({**scores.mesh.as_dict(), **scores.surface.as_dict()})
 
-    records = [{"variant": "photos alone" if photos_only and room.kind != "photos" else "default",
-                **scored(result.mesh), "wall_s": seconds, "extra": extra}]
+    name = "photos alone" if photos_only and room.kind != "photos" else "default"
+    records = [{"variant": name, **scored(result.mesh), "wall_s": seconds, "extra": extra}]
     if result.unfinished_mesh is not None:
-        records.append({"variant": "finish off", **scored(result.unfinished_mesh), "wall_s": seconds})
+        records.append({"variant": "finish off" if name == "default" else f"{name}, finish off",
+                        **scored(result.unfinished_mesh), "wall_s": seconds})
     if not photos_only or room.kind == "photos":
         box = score_mesh("", room_box_from_tsdf(volume), truth, volume)
         records.append({"variant": "room box", **figures({**box.mesh.as_dict(), **box.surface.as_dict()}),
