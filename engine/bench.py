@@ -518,7 +518,8 @@ def refine_markdown(profile: dict[str, Any]) -> str:
 def run(args: argparse.Namespace) -> int:
     if args.real is not None:
         out = args.out if args.out is not None else Path("out") / "real_rooms.json"
-        return run_suite(args.real, args.quick, args.rooms, args.repeat, out, out.parent / "real_rooms_runs")
+        # each run's own records, for looking into one room; never beside the committed table
+        return run_suite(args.real, args.quick, args.rooms, args.repeat, out, Path("out") / "real_rooms_runs")
     if args.refine_profile is not None:
         profile = refine_profile(args.refine_profile)
         print(refine_markdown(profile))
