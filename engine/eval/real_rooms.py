@@ -132,7 +132,6 @@ def figures(scores: Optional[dict[str, Any]]) -> dict[str, Any]:
 
 
 def run_phone(room: Room, photos_only: bool) -> list[dict[str, Any]]:
-
     capture = load_capture(room.path)
     _, held = split_capture(capture, 2)
     held = [f for f in held if f.sensor_depth is not None and f.pose is not None]

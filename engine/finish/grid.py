@@ -73,7 +73,7 @@ class PlaneGrid:
         there the views show the plane standing in front of whatever lies behind it. Not the rest of its
         extent, where the plane is only fitted and nothing the views saw stands in front (the ARKitScenes
         kitchen's recall +0.003, the corridor's +0.003, SUN3D and the demo within a run's spread;
-        docs/experiments.md, "The finishing adds, it does not hide")."""
+        docs/experiments.md, "Real rooms decide")."""
         i, j, inside = self.cells_of(self.plane.to_plane(points))
         opening = ndimage.binary_dilation(self.open, iterations=1)
         seen = ndimage.binary_dilation(self.observed, iterations=1)
