@@ -43,6 +43,7 @@ import torch
 
 from .capture import load_capture
 from .eval.real_rooms import DEFAULT_DATA, run_suite
+from .poses.sfm import FEATURES, SfmOptions
 from .eval.stereo_depth import KEYS as DEPTH_KEYS, compare_depth, true_depth_at
 from .poses.prepare import SFM_NEVER, prepare_capture
 from .poses.refine import refine_poses
@@ -118,6 +119,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rooms", nargs="+", default=None, metavar="NAME", help="with --real: only these rooms")
     parser.add_argument("--repeat", type=int, default=1,
                         help="with --real: run each room this many times and record the spread between the runs")
+    parser.add_argument("--features", choices=FEATURES, default=SfmOptions.features,
+                        help="with --real: pose the photos alone with these features; other than the default, only the "
+                             "photos-alone runs, recorded as 'photos alone (FEATURES)' (default %(default)s)")
     parser.add_argument("--out", type=Path, default=None, help="also write the results as JSON here")
     parser.add_argument("--device", default="cpu", help="cpu or cuda (default %(default)s)")
     parser.add_argument("--evidence-weights", type=Path, default=None,
@@ -519,7 +523,8 @@ def run(args: argparse.Namespace) -> int:
     if args.real is not None:
         out = args.out if args.out is not None else Path("out") / "real_rooms.json"
         # each run's own records, for looking into one room; never beside the committed table
-        return run_suite(args.real, args.quick, args.rooms, args.repeat, out, Path("out") / "real_rooms_runs")
+        return run_suite(args.real, args.quick, args.rooms, args.repeat, out, Path("out") / "real_rooms_runs",
+                         features=args.features)
     if args.refine_profile is not None:
         profile = refine_profile(args.refine_profile)
         print(refine_markdown(profile))

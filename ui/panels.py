@@ -164,6 +164,7 @@ def _settings_layout(layout: Any) -> None:
 
 def draw_pose_settings(layout: Any, settings: Any) -> None:
     _settings_layout(layout)
+    layout.prop(settings, "sfm_features")
     layout.prop(settings, "sfm_matcher")
     layout.prop(settings, "sfm_max_image_side")
     layout.prop(settings, "camera_height")

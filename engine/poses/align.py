@@ -132,8 +132,8 @@ def pose_errors(estimated_c2w: Sequence[np.ndarray], true_c2w: Sequence[np.ndarr
     """Compare two trajectories of the same cameras after a Sim(3) fit of the camera centres.
 
     estimated_c2w, true_c2w: equally long sequences of (4, 4) camera-to-world, OpenCV axes, same order.
-    Returns rotation_deg_mean / rotation_deg_max (angle of R_true^T R_aligned per camera),
-    position_mean / position_max (centre distance in the units of the truth), the fitted `scale`
+    Returns rotation_deg_mean / _max / _median (angle of R_true^T R_aligned per camera),
+    position_mean / _max / _median (centre distance in the units of the truth), the fitted `scale`
     (truth units per estimated unit), `up_deg` (median over the cameras of the angle between "up" as
     each camera sees it in the estimated world and in the true one, +Z of both: how far the estimated
     gravity is off, whatever the fit) and `count`.
@@ -149,7 +149,9 @@ def pose_errors(estimated_c2w: Sequence[np.ndarray], true_c2w: Sequence[np.ndarr
     return {
         "rotation_deg_mean": float(rot_err.mean()),
         "rotation_deg_max": float(rot_err.max()),
+        "rotation_deg_median": float(np.median(rot_err)),
         "position_mean": float(pos_err.mean()),
+        "position_median": float(np.median(pos_err)),
         "position_max": float(pos_err.max()),
         "scale": sim.scale,
         "up_deg": float(np.median(np.degrees(np.arccos(np.clip(np.einsum("ni,ni->n", est[:, 2, :3], gt[:, 2, :3]), -1.0, 1.0))))),

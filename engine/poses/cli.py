@@ -21,7 +21,7 @@ from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .gravity import KnownDistance
 from .prepare import SFM_ALWAYS, SFM_NEVER, prepare_capture
 from .refine import RefineOptions
-from .sfm import INTRINSICS, MATCHERS, SfmOptions
+from .sfm import INTRINSICS, MATCHERS, SfmOptions, add_features_argument
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,6 +33,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(for slightly-off tracker, ARKit or SLAM poses)")
     parser.add_argument("--matcher", choices=MATCHERS, default="auto",
                         help="feature matching: exhaustive for small photo sets, sequential for video (default: auto)")
+    add_features_argument(parser)
     parser.add_argument("--max-side", type=int, default=None,
                         help=f"downscale photos to this larger side for SfM (default {SfmOptions.max_side}) or refinement "
                              f"(default {RefineOptions.max_side}); 0 = full size")
@@ -62,7 +63,8 @@ def _known_distance(values: list[str] | None) -> KnownDistance | None:
 def run(args: argparse.Namespace) -> int:
     known_distance = _known_distance(args.known_distance)
     sizes = {} if args.max_side is None else {"max_side": args.max_side}
-    options = SfmOptions(matcher=args.matcher, intrinsics=args.intrinsics, work_dir=args.work_dir, **sizes)
+    options = SfmOptions(matcher=args.matcher, intrinsics=args.intrinsics, work_dir=args.work_dir, features=args.features,
+                         **sizes)
     refine_options = RefineOptions(work_dir=args.work_dir, **sizes)
     progress = TqdmProgress(disable=args.quiet)
     try:

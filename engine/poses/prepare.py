@@ -114,6 +114,8 @@ class PreparedCapture:
             entry["scale"] = self.scale.summary()
         if self.pose_check is not None:
             entry["pose_check"] = self.pose_check.summary()
+        if self.sfm is not None:
+            entry["features"] = self.sfm.features
         return entry
 
     def pose_status(self) -> str:

@@ -29,7 +29,9 @@ WORKER_SCRIPT = Path(__file__).with_name("sfm_worker.py")
 STAGE_LABELS = {
     "prepare": "poses: downscale photos",
     "extract": "poses: SIFT features",
+    "features": "poses: learned features",
     "match": "poses: matching",
+    "verify": "poses: verify matches",
     "map": "poses: mapping",
     "triangulate": "poses: triangulate with the given poses",
     "adjust": "poses: bundle adjustment",

@@ -28,6 +28,7 @@ Choices (measured in platform-notes section 1 and on the fox photos):
 
 from __future__ import annotations
 
+import argparse
 import shutil
 import tempfile
 from dataclasses import dataclass, field, replace
@@ -46,9 +47,39 @@ from .bends import Bend, find_bend
 from .camera_height import DEFAULT_CAMERA_HEIGHT_M
 from .gravity import Alignment, KnownDistance, align_gravity_and_scale
 from .process import run_pose_job
+from .sfm_worker_learned import missing_packages as learned_missing_packages
 from .quality import distinct_groups, min_group_size, quality_warnings, radial_corner_shift, significant_distortion
 
 MATCHERS = ("auto", "sequential", "exhaustive")
+# The features structure from motion matches: COLMAP's SIFT, or XFeat's learned keypoints and
+# descriptors with learned matching and pairs by retrieval (`sfm_worker_learned.py`).
+FEATURES = ("sift", "learned")
+FEATURE_NAMES = {"sift": "SIFT features", "learned": "learned features (XFeat)"}  # as reports name them
+FEATURES_HELP = ("features structure from motion matches: 'sift' (COLMAP's SIFT) or 'learned' (XFeat keypoints, "
+                 "learned matching, pairs by retrieval: more matches on blurred, fast-turning or plain photos)")
+
+
+def add_features_argument(parser: argparse.ArgumentParser) -> None:
+    """--features, for every command that estimates poses (`engine poses`, `engine reconstruct`, the batch)."""
+    parser.add_argument("--features", choices=FEATURES, default=SfmOptions.features,
+                        help=f"{FEATURES_HELP} (default %(default)s)")
+
+
+def missing_learned_packages() -> list[str]:
+    """The packages the learned features need that are not installed (pip names; empty when all are)."""
+    return learned_missing_packages()
+
+
+def check_features(features: str) -> None:
+    """Refuse an unknown Features setting, or learned features without their packages (with what to do)."""
+    if features not in FEATURES:
+        raise PoseError(f"unknown features {features!r}; use one of {', '.join(FEATURES)}")
+    missing = missing_learned_packages() if features == "learned" else []
+    if missing:
+        raise PoseError(
+            f"learned features need the Python packages {', '.join(missing)}, which are not installed: run `make venv` "
+            f"(or pip install -r requirements.txt -c constraints.txt), or in Blender Preferences > Add-ons > VoRTX "
+            f"Install Missing Packages; or estimate poses with SIFT (--features sift, Features: SIFT in Blender)")
 INTRINSICS = ("auto", "fixed", "prior", "estimate")
 # Formats whose K comes from a calibration or an earlier SfM; a photo folder's or video's K is an
 # EXIF guess (or absent) and only a starting point.
@@ -73,6 +104,8 @@ class SfmOptions:
     undistort: bool = True  # undistort the photos (into the cache) when the lens distortion is significant
     cache_dir: Optional[Path] = None  # where undistorted photos go (default: see engine.capture.cache)
     max_num_features: int = 8192  # SIFT features per photo
+    features: str = "sift"  # one of FEATURES
+    learned_matcher: str = "mnn"  # learned features: "mnn" (mutual nearest neighbours) | "lighterglue"
     num_threads: int = -1  # -1: all cores
     align: bool = True  # gravity (+Z up), floor at z = 0 and metric scale after SfM
     camera_height: float = DEFAULT_CAMERA_HEIGHT_M  # metres above the floor, for the scale when no known distance is given
@@ -98,6 +131,7 @@ class PoseResult:
     timings: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)  # what was done that is no problem (undistortion)
+    features: str = "sift"  # one of FEATURES
 
     @property
     def report(self) -> str:
@@ -105,7 +139,7 @@ class PoseResult:
         total = len(self.registered) + len(self.unregistered)
         f = 0.5 * (self.K[0, 0] + self.K[1, 1])
         lines = [
-            f"Camera poses: pycolmap SfM, {self.matcher} matching, {self.camera_model} camera, "
+            f"Camera poses: pycolmap SfM, {FEATURE_NAMES[self.features]}, {self.matcher} matching, {self.camera_model} camera, "
             f"photos at {self.scaled_size[0]}x{self.scaled_size[1]}",
             f"  registered {len(self.registered)} of {total} photos"
             + (f"; not placed: {name_list(self.unregistered)}" if self.unregistered else ""),
@@ -178,6 +212,7 @@ def estimate_poses(
         raise PoseError(f"no photos in {capture.root}: nothing to estimate poses from")
     if options.camera_model not in CAMERA_MODELS:
         raise PoseError(f"unsupported camera model {options.camera_model!r}; use one of {', '.join(CAMERA_MODELS)}")
+    check_features(options.features)
     matcher = choose_matcher(capture, options)
     intrinsics, given_K = intrinsics_mode(capture, options)
     check(cancel)
@@ -197,6 +232,8 @@ def estimate_poses(
         "intrinsics": intrinsics,
         "K": None if given_K is None else given_K.tolist(),
         "max_num_features": int(options.max_num_features),
+        "features": options.features,
+        "learned_matcher": options.learned_matcher,
         "num_threads": int(options.num_threads),
         "min_model_size": min_group_size(len(names)),
     }
@@ -387,6 +424,7 @@ def _pose_result(
         timings={k: float(v) for k, v in result["timings"].items()},
         warnings=warnings,
         notes=notes,
+        features=options.features,
     )
 
 

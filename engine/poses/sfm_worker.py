@@ -51,10 +51,12 @@ from typing import Optional
 import numpy as np
 
 if __package__:  # imported as part of the engine (the parent reads its constants, the tests its steps)
+    from .sfm_worker_learned import drop_unlike_far_pairs, learned_database
     from .sfm_worker_refine import run_refine
     from .sfm_worker_steps import (LOW_CONTRAST_PEAK_THRESHOLD, database_stats, downscale_images, extract_features,
                                    median_keypoints, say)
 else:  # run by file path in the worker process, where this folder is sys.path[0]
+    from sfm_worker_learned import drop_unlike_far_pairs, learned_database
     from sfm_worker_refine import run_refine
     from sfm_worker_steps import (LOW_CONTRAST_PEAK_THRESHOLD, database_stats, downscale_images, extract_features,
                                   median_keypoints, say)
@@ -194,8 +196,33 @@ def run_sfm(job: dict) -> None:
     sizes, sx, sy = downscale_images(job, image_dir)
     timings["prepare"] = time.perf_counter() - start
 
-    start = time.perf_counter()
     reader = (pycolmap.CameraMode.SINGLE, reader_options(job, sx, sy))
+    learned = job.get("features", "sift") == "learned"
+    low_contrast, pairs_matched = None, None
+    if learned:
+        done = learned_database(job, db_path, image_dir, names, reader, say)
+        timings.update({"extract": done["extract"], "match": done["match"], "verify": done["verify"]})
+        pairs_matched = done["pairs"]
+    else:
+        low_contrast = _sift_database(job, work, db_path, image_dir, names, reader, timings)
+    far_pairs_dropped = None
+    if job["matcher"] == "sequential":  # pairs beyond the sequence: loops, or look-alike places
+        drop_far = drop_unlike_far_pairs if learned else drop_weak_far_pairs
+        far_pairs_dropped = drop_far(db_path, int(job["overlap"]))
+    say("progress", "match", len(names), len(names))
+    stats = database_stats(db_path)
+    stats.update({"far_pairs_dropped": far_pairs_dropped, "low_contrast": low_contrast,
+                  "features": "learned" if learned else "sift", "pairs_matched": pairs_matched})
+    _map(job, work, db_path, image_dir, names, sizes, sx, sy, stats, timings, seed=None)
+
+
+def _sift_database(job: dict, work: Path, db_path: Path, image_dir: Path, names: list[str], reader,
+                   timings: dict) -> Optional[dict]:
+    """SIFT features and COLMAP's matching (sequential with loop detection, or exhaustive) into the
+    database at `db_path`; returns {"before", "after"} when low-contrast photos were extracted again."""
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
+
+    start = time.perf_counter()
     extract_features(job, db_path, image_dir, names, reader)
     low_contrast = None
     typical = median_keypoints(db_path)
@@ -223,7 +250,6 @@ def run_sfm(job: dict) -> None:
             pairing.loop_detection_num_images = LOOP_IMAGES
         timings["vocabulary_tree"] = time.perf_counter() - start
         pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
-        far_pairs_dropped = drop_weak_far_pairs(db_path, int(job["overlap"]))
     else:
         pairing = pycolmap.ExhaustivePairingOptions()
         # Blocks of ~1/5 of the images (COLMAP logs one line per block) give the progress bar
@@ -231,12 +257,7 @@ def run_sfm(job: dict) -> None:
         pairing.block_size = max(10, -(-len(names) // 5))
         pycolmap.match_exhaustive(db_path, matching_options=matching, pairing_options=pairing, device=pycolmap.Device.cpu)
     timings["match"] = time.perf_counter() - start
-    say("progress", "match", len(names), len(names))
-    stats = database_stats(db_path)
-    if job["matcher"] == "sequential":
-        stats["far_pairs_dropped"] = far_pairs_dropped
-    stats["low_contrast"] = low_contrast
-    _map(job, work, db_path, image_dir, names, sizes, sx, sy, stats, timings, seed=None)
+    return low_contrast
 
 
 def _map(job: dict, work: Path, db_path: Path, image_dir: Path, names: list[str], sizes: list[dict], sx: float,

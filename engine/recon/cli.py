@@ -27,6 +27,7 @@ from ..mesh_io import write_ply
 from ..sidecar import sidecar_path
 from ..poses.camera_height import DEFAULT_CAMERA_HEIGHT_M
 from ..poses.prepare import KEEP_POSES_HELP, SFM_IF_UNPOSED, PreparedCapture, prepare_capture
+from ..poses.sfm import SfmOptions, add_features_argument
 from ..texture.files import write_textured
 from ..texture.views import views_from_capture
 from ..texture.vr import textured_result
@@ -51,6 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--camera-height", type=float, default=DEFAULT_CAMERA_HEIGHT_M,
                         help="metres above the floor, for the scale of captures whose poses are not metric "
                              "(default %(default)s)")
+    add_features_argument(parser)  # for photos without poses (structure from motion first)
     parser.add_argument("--refine-poses", action="store_true",
                         help="refine the capture's own poses against the photos before reconstructing (for slightly-off "
                              "tracker, ARKit or SLAM poses; the report gives each frame's change)")
@@ -112,6 +114,7 @@ def run(args: argparse.Namespace) -> int:
         # Given poses that are not refined are checked against the photos; poses that look off are refined
         # (--keep-poses: a warning instead).
         prepared = prepare_capture(capture, camera_height=args.camera_height, sfm=SFM_IF_UNPOSED,
+                                   sfm_options=SfmOptions(features=args.features),
                                    refine=args.refine_poses, progress=progress, check_poses=True,
                                    refine_when_off=not args.keep_poses)
         report_preparation(prepared)

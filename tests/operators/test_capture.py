@@ -204,11 +204,13 @@ def test_estimate_poses_applies_engine_result(blender, empty_scene, fake_loader,
 
     monkeypatch.setattr(poses, "estimate_poses", fake_estimate)
     empty_scene.vortx.sfm_matcher = "SEQUENTIAL"
+    empty_scene.vortx.sfm_features = "LEARNED"
     empty_scene.vortx.camera_height = 1.7
     empty_scene.vortx.sfm_max_image_side = 800
     assert bpy.ops.vortx.estimate_poses() == {"FINISHED"}
     (options,) = seen_options
     assert (options.matcher, options.camera_height, options.max_side, options.align) == ("sequential", pytest.approx(1.7), 800, True)
+    assert options.features == "learned"
     settings = empty_scene.vortx
     assert settings.posed_frame_count == 5 and settings.frame_count == 6
     # No sparse points in the stand-in, so no floor: the camera-height guess, said as such (scale.py).

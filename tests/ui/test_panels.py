@@ -179,7 +179,7 @@ def test_capture_panel_shows_running_job(blender, empty_scene) -> None:
         ("VORTX_PT_reconstruction", ["method", "quality", "voxel_size", "result_mode"]),
         ("VORTX_PT_stereo", ["stereo_matcher", "stereo_image_size", "stereo_views", "stereo_planes", "stereo_sources",
                              "stereo_min_ncc", "stereo_consistency"]),
-        ("VORTX_PT_pose_settings", ["sfm_matcher", "sfm_max_image_side", "camera_height"]),
+        ("VORTX_PT_pose_settings", ["sfm_features", "sfm_matcher", "sfm_max_image_side", "camera_height"]),
         ("VORTX_PT_model", ["weights_source", "device", "seed", "view_count", "tile_size", "image_size"]),
         ("VORTX_PT_tiles", ["show_tiles"]),
         ("VORTX_PT_result", ["finish", "min_piece_faces", "min_piece_fraction", "target_faces", "texture_size", "face_budget",

@@ -20,6 +20,11 @@ def test_defaults_and_units(blender, empty_scene) -> None:
     assert (rna["voxel_size"].subtype, rna["voxel_size"].unit) == ("DISTANCE", "LENGTH")
     assert (rna["camera_height"].subtype, rna["camera_height"].unit) == ("DISTANCE", "LENGTH")
     assert set(rna["sfm_matcher"].enum_items.keys()) == {"AUTO", "SEQUENTIAL", "EXHAUSTIVE"}
+    # The Features menu offers the engine's choices, its default the engine's default.
+    from engine.poses.sfm import FEATURES, SfmOptions
+
+    assert [k.lower() for k in rna["sfm_features"].enum_items.keys()] == list(FEATURES)
+    assert settings.sfm_features.lower() == SfmOptions.features
     assert (settings.weights_source, settings.weights_path, settings.device, settings.seed) == ("DEFAULT", "", "CPU", 0)
     assert (settings.result_mode, settings.min_piece_faces, settings.min_piece_fraction, settings.target_faces) == ("REPLACE", 0, 0.0, 0)
     assert (settings.image_size, settings.colour_views) == (0, 40)  # 0: the weights decide
@@ -54,6 +59,7 @@ def test_values_survive_save_and_reopen(blender, empty_scene, tmp_path: Path) ->
         "tile_size": 64,
         "show_tiles": False,
         "sfm_matcher": "EXHAUSTIVE",
+        "sfm_features": "LEARNED",
         "sfm_max_image_side": 1024,
         "camera_height": 1.25,
         "weights_source": "FILE",

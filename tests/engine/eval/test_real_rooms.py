@@ -116,3 +116,16 @@ def test_the_committed_table_holds_the_issue_s_fields():
     rooms_with_truth = {r["room"] for r in records if r["variant"] == "default" and r["fscore"] is not None}
     assert len(rooms_with_truth) >= 4
     assert all(np.isfinite(r["fscore"]) for r in records if r["fscore"] is not None)
+
+
+def test_learned_features_run_only_the_photos_alone_and_are_named_so(tmp_path):
+    """`bench --real --features learned` poses every room's photos alone with the learned features,
+    beside SIFT's rows, and runs nothing else again."""
+    from engine.eval.real_rooms import Room, photos_alone_name, runs_of
+
+    rooms = {kind: Room(kind, tmp_path, kind, "", False) for kind in ("phone", "room", "photos", "time")}
+    assert {kind: runs_of(room) for kind, room in rooms.items()} == {
+        "phone": ["default", "photos alone"], "room": ["default", "photos alone"], "photos": ["default"], "time": ["default"]}
+    assert {kind: runs_of(room, "learned") for kind, room in rooms.items()} == {
+        "phone": ["photos alone"], "room": ["photos alone"], "photos": ["default"], "time": []}
+    assert (photos_alone_name("sift"), photos_alone_name("learned")) == ("photos alone", "photos alone (learned)")

@@ -18,14 +18,14 @@ from engine.recon.settings import BLENDER, CLI, ReconSettings, cli_flag, field_d
 
 # Flags of each command that are not reconstruction settings.
 # --quality is a preset of several settings (engine/recon/presets.py), not a setting of its own.
-RECONSTRUCT_OWN = {"help", "capture", "images_dir", "out", "camera_height", "refine_poses", "keep_poses", "quiet", "quality", "preview"}
-BATCH_OWN = {"help", "capture", "captures", "out", "export", "camera_height", "skip_poses", "refine_poses", "keep_poses", "vr", "ray", "ray_cpus",
+RECONSTRUCT_OWN = {"help", "capture", "images_dir", "out", "camera_height", "features", "refine_poses", "keep_poses", "quiet", "quality", "preview"}
+BATCH_OWN = {"help", "capture", "captures", "out", "export", "camera_height", "features", "skip_poses", "refine_poses", "keep_poses", "vr", "ray", "ray_cpus",
              "quality"}
 # scene.vortx properties that are not ReconSettings fields: the capture summary, pose estimation,
 # the weights chooser (-> ReconSettings.weights), the tile overlay and the Blender-side result options.
 BLENDER_OWN = {
     "capture_path", "capture_format", "frame_count", "posed_frame_count", "resolution_x", "resolution_y",
-    "poses_metric", "pose_status", "pose_source", "scale_source", "scale_description", "scale_uncertainty", "pose_check", "keep_given_poses", "skipped_count", "skipped_names", "sfm_matcher", "sfm_max_image_side", "camera_height",
+    "poses_metric", "pose_status", "pose_source", "scale_source", "scale_description", "scale_uncertainty", "pose_check", "keep_given_poses", "skipped_count", "skipped_names", "sfm_matcher", "sfm_features", "sfm_max_image_side", "camera_height",
     "capture_frame", "weights_source", "weights_path", "show_tiles", "result_mode", "min_piece_faces", "min_piece_fraction",
     "target_faces", "quality",  # quality: the presets over the stereo settings (engine/recon/presets.py)
 }
