@@ -61,6 +61,9 @@ def _known_distance(values: list[str] | None) -> KnownDistance | None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.refine and args.features != SfmOptions.features:
+        raise PoseError(f"--features {args.features} is for structure from motion; --refine refines the given poses "
+                        "with SIFT, whose keypoints are the more precise (drop --features, or --refine)")
     known_distance = _known_distance(args.known_distance)
     sizes = {} if args.max_side is None else {"max_side": args.max_side}
     options = SfmOptions(matcher=args.matcher, intrinsics=args.intrinsics, work_dir=args.work_dir, features=args.features,

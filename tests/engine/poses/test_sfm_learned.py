@@ -154,3 +154,17 @@ def test_every_command_that_estimates_poses_offers_the_features():
             parser.parse_args(["room", "--out", "x.ply", "--features", "orb"])
     assert argument_parser().parse_args(["room", "--out", "o", "--features", "learned"]).features == "learned"
     assert set(FEATURES) == {"sift", "learned"}
+
+
+def test_refining_given_poses_refuses_learned_features_before_loading(tmp_path):
+    """--refine keeps SIFT (its keypoints are the more precise, and the poses are given): asking for
+    learned features there is refused, not ignored."""
+    import argparse
+
+    from engine.poses import cli
+
+    parser = argparse.ArgumentParser()
+    cli.add_arguments(parser)
+    args = parser.parse_args([str(tmp_path / "not-there"), "--out", str(tmp_path / "out"), "--refine", "--features", "learned"])
+    with pytest.raises(PoseError, match="--features learned is for structure from motion"):
+        cli.run(args)
