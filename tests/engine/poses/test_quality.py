@@ -146,20 +146,22 @@ def test_too_few_photos_are_not_checked_and_say_so():
     assert prepared.pose_check is None and any("not checked" in n for n in prepared.notes)
 
 
-def _check_with(monkeypatch, points: int, error: float):
-    """check_given_poses on 10 synthetic posed frames, the worker's triangulation replaced by `points`
-    points reprojecting `error` px on average (no photos or COLMAP needed)."""
+def _check_with(monkeypatch, points: int, error: float, size: tuple[int, int] = (320, 240)):
+    """check_given_poses on 10 synthetic posed frames of `size` (width, height), the worker's
+    triangulation replaced by `points` points reprojecting `error` px on average (no photos or COLMAP
+    needed)."""
     from engine.poses import quality
 
     def fake_job(job, work, keep_work, task, progress=None, cancel=None):
         return {"mean_reprojection_error": error}, np.zeros((points, 3)), np.zeros((points, 3), np.uint8)
 
     monkeypatch.setattr(quality, "run_pose_job", fake_job)
-    K = np.array([[277.0, 0, 160], [0, 277.0, 120], [0, 0, 1]])
+    width, height = size
+    K = np.array([[0.87 * width, 0, width / 2], [0, 0.87 * width, height / 2], [0, 0, 1]])
     poses = [np.eye(4) for _ in range(10)]
     for k, pose in enumerate(poses):
         pose[0, 3] = 0.1 * k
-    frames = [Frame(Path(f"/c/{k:06d}.jpg"), 320, 240, K.copy(), p) for k, p in enumerate(poses)]
+    frames = [Frame(Path(f"/c/{k:06d}.jpg"), width, height, K.copy(), p) for k, p in enumerate(poses)]
     return quality.check_given_poses(Capture(Path("/c"), "scannet", frames, metric=True))
 
 
@@ -175,3 +177,15 @@ def test_a_weakly_textured_room_s_few_points_still_judge_the_poses(monkeypatch):
     assert not fit.poses_off and fit.message == ""
     unknown = _check_with(monkeypatch, 20, 3.74)
     assert not unknown.poses_off and "could not be checked" in unknown.message and "only 20 points" in unknown.message
+
+
+def test_the_same_angle_off_is_judged_alike_at_every_photo_size(monkeypatch):
+    # The ARKitScenes kitchens' iPad poses reproject 0.80-0.85 px at their own 256 x 192: 1.5-1.6 px
+    # at the check's 480 px, more in angle than the corridor's 1.04 px at 480, which is refined.
+    small = _check_with(monkeypatch, 200, 0.80, size=(256, 192))
+    assert small.poses_off and small.image_side == 256
+    assert "0.80 px" in small.message and "1.50 px at 480 px" in small.message
+    large = _check_with(monkeypatch, 200, 0.80, size=(640, 480))
+    assert not large.poses_off and large.image_side == 480 and large.message == ""
+    fit = _check_with(monkeypatch, 200, 0.50, size=(256, 192))  # 0.94 px at 480: poses that fit
+    assert not fit.poses_off
