@@ -185,8 +185,9 @@ POSE_CHECK_MAX_FRAMES = 24  # evenly spaced frames checked (their neighbours by 
 # Mean reprojection error above which the given poses are called off, in pixels at POSE_CHECK_MAX_SIDE:
 # a smaller photo's error is scaled up to that side. Judged at their own 256 px, the two ARKitScenes
 # kitchens' iPad poses (0.80 and 0.85 px there, 1.5-1.6 px at 480: more than the 3D Scanner App
-# corridor's 1.04 in angle) passed and were not refined; refined, their meshes' F rose 0.427 -> 0.467
-# and 0.375 -> 0.414 (docs/experiments.md, "Small photos' poses judged at the check's side").
+# corridor's 1.04 in angle) passed and were not refined; refined, their meshes' F rose 0.427 -> 0.437
+# and 0.375 -> 0.415, recall 0.356 -> 0.387 and 0.318 -> 0.354 (docs/experiments.md, "Small photos'
+# poses judged at the check's side").
 MAX_GIVEN_POSE_ERROR_PX = 1.0
 # Fewer triangulated points than this: too little to judge by. A weakly textured room gives few
 # (room_05001, 24 photos at 320 x 240: 126-127 points, tracker or true poses; room_05002's tracker
