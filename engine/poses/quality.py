@@ -274,7 +274,7 @@ def check_given_poses(
                          features, xyz)
     # The threshold is in pixels at the check's side: photos smaller than that are judged as if enlarged
     # to it, so the same angular error is called off at every photo size.
-    judged_side = max(side, max_side) if max_side > 0 else side
+    judged_side = max_side if max_side > 0 else side  # side never exceeds max_side
     judged = float(error) * judged_side / side
     if judged > MAX_GIVEN_POSE_ERROR_PX:
         at = f"{side} px" if judged_side == side else f"{side} px, {judged:.2f} px at {judged_side} px"
